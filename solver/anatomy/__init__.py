@@ -1,0 +1,7 @@
+"""Face anatomies: the procedural generic face and the published ANSYS reference face."""
+
+from .base import (LANDMARK_NAMES, MUSCLE_FULL_NAMES, MUSCLE_NAMES, Anatomy, Fibre,
+                   RigidSurface)
+
+__all__ = ["Anatomy", "Fibre", "RigidSurface", "MUSCLE_NAMES", "MUSCLE_FULL_NAMES",
+           "LANDMARK_NAMES"]

@@ -1,0 +1,41 @@
+"""Energy, stress and tangent of the Mooney-Rivlin law at one material point."""
+
+import numpy as np
+from numba import njit
+
+from .invariants import principal_derivatives, stress_tangent
+from .mooney_rivlin import iso_energy, vol_energy
+
+
+@njit(cache=True)
+def point_response(C, p, with_vol, S, D):
+    """W at C (3, 3); fills S (3, 3), D (6, 6). with_vol adds U(J) to the isochoric part."""
+    I1 = C[0, 0] + C[1, 1] + C[2, 2]
+    I2 = 0.5 * (I1 * I1 - (C[0, 0] ** 2 + C[1, 1] ** 2 + C[2, 2] ** 2
+                           + 2.0 * (C[0, 1] ** 2 + C[1, 2] ** 2 + C[0, 2] ** 2)))
+    I3 = (C[0, 0] * (C[1, 1] * C[2, 2] - C[1, 2] * C[2, 1])
+          - C[0, 1] * (C[1, 0] * C[2, 2] - C[1, 2] * C[2, 0])
+          + C[0, 2] * (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]))
+    t13 = I3 ** (-1.0 / 3.0)
+    wb = np.zeros(3)
+    wbb = np.zeros((3, 3))
+    W = iso_energy(I1 * t13, I2 * t13 * t13, p, wb, wbb)
+    if with_vol:
+        U, dU, ddU = vol_energy(np.sqrt(I3), p)
+        W += U
+        wb[2] = dU
+        wbb[2, 2] = ddU
+    w = np.empty(3)
+    ww = np.empty((3, 3))
+    principal_derivatives(I1, I2, I3, wb, wbb, w, ww)
+    stress_tangent(C, w, ww, S, D)
+    return W
+
+
+def response(F, p, with_vol=True):
+    """W, P = F S (3, 3), S (3, 3), D (6, 6) at a deformation gradient F (3, 3)."""
+    F = np.asarray(F, dtype=np.float64)
+    S = np.empty((3, 3))
+    D = np.empty((6, 6))
+    W = point_response(F.T @ F, np.asarray(p, dtype=np.float64), with_vol, S, D)
+    return W, F @ S, S, D

@@ -1,0 +1,167 @@
+r"""Newton-Raphson with a residual line search, on the free DOFs of a System.
+
+Convergence (all must hold at an iterate):
+
+    ||r_f||_2      <= rtol * r_ref + atol        force criterion, N
+    ||du||_inf     <= utol                       displacement criterion, mm
+
+where r_f is the residual on the free DOFs and r_ref = max(||f_int||_2 over all DOFs,
+||f_ext||_2, 1e-12 N) at the current iterate (the load scale, reactions included).
+The update solves K_ff du_f = -(r_f + K_fp du_p), where du_p brings the prescribed DOFs
+to their targets, so that a step's predictor is the consistent linearization.
+
+Line search: while prescribed DOFs move (du_p != 0) the linearized residual vanishes
+along the whole step, so the step is only shortened (halved) until admissible. Otherwise,
+along du, g(s) = du . r(u + s du). Newton's step s = 1 is kept when
+|g(1)| <= 0.5 |g(0)| and the state is admissible (no det F <= 0); otherwise s is
+found by secant steps safeguarded in (0.05, 1] (at most ``max_ls`` residual evaluations).
+An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
+first residual) fails the step, and the caller cuts back.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .terms.base import InvertedElement
+
+
+@dataclass
+class NewtonOptions:
+    rtol: float = 1e-6
+    atol: float = 1e-10
+    utol: float = 1e-5
+    max_iter: int = 25
+    max_ls: int = 6
+    diverge_factor: float = 1e6
+
+
+@dataclass
+class NewtonReport:
+    converged: bool
+    iterations: int
+    residuals: list = field(default_factory=list)   # ||r_f|| at each iterate
+    reason: str = ""
+
+
+class NewtonFailure(Exception):
+    pass
+
+
+def _direction(system, r, data, dup, free, prescribed, lin):
+    rhs = -r[free]
+    if len(prescribed) and np.any(dup):
+        full = np.zeros(system.ndof)
+        full[prescribed] = dup
+        rhs -= (system.pattern.matrix(data) @ full)[free]
+    lin.factorize(system.reduction.matrix(data))
+    duf = lin.solve(rhs)
+    du = np.zeros(system.ndof)
+    du[free] = duf
+    du[prescribed] = dup
+    return du
+
+
+def _trial(system, u, du, s):
+    """Residual at u + s du, or None where the state is not admissible."""
+    try:
+        return system.residual(u + s * du)
+    except InvertedElement:
+        return None
+
+
+def _admissible_fraction(system, u, du, opts):
+    """Largest s in 1, 1/2, 1/4, ... at which the state is admissible, or None."""
+    s = 1.0
+    for _ in range(opts.max_ls):
+        r = _trial(system, u, du, s)
+        if r is not None and np.all(np.isfinite(r)):
+            return s
+        s *= 0.5
+    return None
+
+
+def _line_search(system, u, du, r0, opts):
+    g0 = du @ r0
+    r1 = _trial(system, u, du, 1.0)
+    if r1 is not None and np.all(np.isfinite(r1)) and abs(du @ r1) <= 0.5 * abs(g0):
+        return 1.0
+    s_lo, g_lo = 0.0, g0
+    s, g = 1.0, (du @ r1 if r1 is not None and np.all(np.isfinite(r1)) else None)
+    best = None
+    for _ in range(opts.max_ls):
+        if g is None:
+            s_new = 0.5 * s
+        else:
+            if best is None or abs(g) < best[1]:
+                best = (s, abs(g))
+            if abs(g) <= 0.5 * abs(g0):
+                return s
+            denom = g - g_lo
+            s_new = s - g * (s - s_lo) / denom if denom != 0 else 0.5 * s
+            s_new = min(max(s_new, 0.05), 1.0) if np.isfinite(s_new) else 0.5 * s
+            if g * g0 > 0:
+                s_lo, g_lo = s, g
+        s = s_new
+        r = _trial(system, u, du, s)
+        g = du @ r if r is not None and np.all(np.isfinite(r)) else None
+    if g is not None and (best is None or abs(g) < best[1]):
+        best = (s, abs(g))
+    return best[0] if best is not None else None
+
+
+def newton(system, u0, targets, lin, opts):
+    """Solve system.residual(u) = 0 on the free DOFs with u[prescribed] = targets.
+
+    system   has ndof, free, prescribed, pattern, reduction, assemble(u) -> (r, data),
+             residual(u) -> r, external_scale() -> N
+    u0       (ndof,) start; targets (len(prescribed),)
+    Returns (u, r, NewtonReport); u is None when the iteration failed, r the residual
+    (ndof,) at u (reactions on the prescribed DOFs).
+    """
+    u = u0.copy()
+    free, prescribed = system.free, system.prescribed
+    report = NewtonReport(False, 0)
+    for it in range(opts.max_iter + 1):
+        try:
+            r, data = system.assemble(u)
+        except InvertedElement as exc:
+            report.reason = str(exc)
+            return None, None, report
+        rf = r[free]
+        rn = float(np.linalg.norm(rf))
+        report.residuals.append(rn)
+        if not np.isfinite(rn):
+            report.reason = "residual is not finite"
+            return None, None, report
+        dup = targets - u[prescribed]
+        ref = max(float(np.linalg.norm(r[prescribed])), system.external_scale(), 1e-12)
+        if it > 0 and rn <= opts.rtol * ref + opts.atol and step_size <= opts.utol \
+                and not np.any(dup):
+            report.converged = True
+            return u, r, report
+        if it == opts.max_iter:
+            report.reason = f"no convergence in {opts.max_iter} iterations (||r|| = {rn:.3g} N)"
+            return None, None, report
+        if it > 2 and rn > opts.diverge_factor * max(report.residuals[0], ref * opts.rtol):
+            report.reason = f"diverging (||r|| = {rn:.3g} N)"
+            return None, None, report
+        try:
+            du = _direction(system, r, data, dup, free, prescribed, lin)
+        except RuntimeError as exc:           # singular factorization
+            report.reason = f"linear solver failed: {exc}"
+            return None, None, report
+        if not np.all(np.isfinite(du)):
+            report.reason = "linear solve gave a non-finite update (singular tangent?)"
+            return None, None, report
+        if np.any(dup):
+            s = _admissible_fraction(system, u, du, opts)
+        else:
+            s = _line_search(system, u, du, r, opts)
+        if s is None:
+            report.reason = "line search found no admissible state (elements invert)"
+            return None, None, report
+        u = u + s * du
+        step_size = float(np.abs(s * du).max()) if len(du) else 0.0
+        report.iterations = it + 1
+    return None, None, report

@@ -1,0 +1,73 @@
+"""A list of terms over one DOF space, with its sparsity pattern and constraints.
+
+The solver walks the terms in order; a term that is not in the list costs nothing.
+"""
+
+import numpy as np
+
+from .assembly import Assembly, Pattern, Reduction
+from .terms.base import State
+
+
+class System:
+    """terms: list of Term; ndof = 3 n; prescribed DOFs (p,) sorted."""
+
+    def __init__(self, terms, n_nodes, prescribed):
+        self.terms = list(terms)
+        self.ndof = 3 * n_nodes
+        self.n_nodes = n_nodes
+        blocks, self._ids = [], []
+        for t in self.terms:
+            b = list(t.blocks())
+            self._ids.append(list(range(len(blocks), len(blocks) + len(b))))
+            blocks += b
+        self.pattern = Pattern(self.ndof, blocks)
+        self.set_constraints(prescribed)
+        self.lam = 1.0
+        self.t = 0.0
+        self.extra = {}
+        self.counters = {"assemblies": 0, "residuals": 0}
+
+    def set_constraints(self, prescribed):
+        self.prescribed = np.asarray(sorted(prescribed), dtype=np.int64)
+        mask = np.ones(self.ndof, dtype=bool)
+        mask[self.prescribed] = False
+        self.free = np.flatnonzero(mask)
+        self.reduction = Reduction(self.pattern, self.free)
+
+    def state(self, u):
+        return State(u.reshape(-1, 3), self.lam, self.t, self.extra)
+
+    def _run(self, u, need_k):
+        asm = Assembly(self.pattern, need_k)
+        st = self.state(u)
+        for term, ids in zip(self.terms, self._ids):
+            term.assemble(st, asm, ids)
+        self.energy = asm.energy
+        return asm
+
+    def assemble(self, u):
+        """(r (ndof,), tangent CSR data (nnz,)) at u (ndof,)."""
+        self.counters["assemblies"] += 1
+        asm = self._run(u, True)
+        return asm.residual, asm.data
+
+    def residual(self, u):
+        self.counters["residuals"] += 1
+        return self._run(u, False).residual
+
+    def external_scale(self):
+        """A force scale of the loads (N), for the relative convergence criterion."""
+        return max((t.load_scale(self.lam) for t in self.terms if hasattr(t, "load_scale")),
+                   default=0.0)
+
+    def commit(self, u):
+        st = self.state(u)
+        for t in self.terms:
+            t.commit(st)
+
+    def term(self, name):
+        for t in self.terms:
+            if t.name == name:
+                return t
+        raise KeyError(name)
