@@ -150,7 +150,8 @@ class Model:
             u_new, r, rep = newton(sysm, u, targets, self.linear_solver, opts)
             res.iterations += rep.iterations
             res.steps.append({"lam": lam_try, "iterations": rep.iterations,
-                              "residuals": rep.residuals, "converged": rep.converged})
+                              "residuals": rep.residuals, "converged": rep.converged,
+                              "reason": rep.reason})
             if u_new is None:
                 res.cutbacks += 1
                 run_of_cuts += 1

@@ -16,7 +16,9 @@ along du, g(s) = du . r(u + s du). Newton's step s = 1 is kept when
 |g(1)| <= 0.5 |g(0)| and the state is admissible (no det F <= 0); otherwise s is
 found by secant steps safeguarded in (0.05, 1] (at most ``max_ls`` residual evaluations).
 An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
-first residual) fails the step, and the caller cuts back.
+larger of the first two residuals) or that stalls (not halved over ``stall_window``
+iterations, checked from iteration stall_window + 4 on) fails the step, and the caller
+cuts back.
 """
 
 from dataclasses import dataclass, field
@@ -34,6 +36,7 @@ class NewtonOptions:
     max_iter: int = 25
     max_ls: int = 6
     diverge_factor: float = 1e6
+    stall_window: int = 4
 
 
 @dataclass
@@ -143,8 +146,12 @@ def newton(system, u0, targets, lin, opts):
         if it == opts.max_iter:
             report.reason = f"no convergence in {opts.max_iter} iterations (||r|| = {rn:.3g} N)"
             return None, None, report
-        if it > 2 and rn > opts.diverge_factor * max(report.residuals[0], ref * opts.rtol):
+        if it > 2 and rn > opts.diverge_factor * max(report.residuals[:2]):
             report.reason = f"diverging (||r|| = {rn:.3g} N)"
+            return None, None, report
+        if it >= opts.stall_window + 4 and rn > 0.5 * report.residuals[it - opts.stall_window]:
+            report.reason = (f"stalled (||r|| = {rn:.3g} N, not halved in "
+                             f"{opts.stall_window} iterations)")
             return None, None, report
         try:
             du = _direction(system, r, data, dup, free, prescribed, lin)

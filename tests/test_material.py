@@ -46,7 +46,7 @@ def test_material_tangent_is_stress_derivative(p, case):
     F = CASES[case]
     C = F.T @ F
     S, D = np.empty((3, 3)), np.empty((6, 6))
-    point_response(C, p, True, S, D)
+    point_response(C, p, True, True, S, D)
     h = 1e-7
     Dn = np.zeros((6, 6))
     for q, (k, l) in enumerate(VOIGT):
@@ -54,8 +54,8 @@ def test_material_tangent_is_stress_derivative(p, case):
         dC[k, l] += h
         dC[l, k] += h if k != l else 0.0
         Sp, Sm, Dd = np.empty((3, 3)), np.empty((3, 3)), np.empty((6, 6))
-        point_response(C + dC, p, True, Sp, Dd)
-        point_response(C - dC, p, True, Sm, Dd)
+        point_response(C + dC, p, True, True, Sp, Dd)
+        point_response(C - dC, p, True, True, Sm, Dd)
         dS = (Sp - Sm) / (2 * h)
         scale = 1.0 if k == l else 0.5            # a shear entry of C moves two components
         for r, (i, j) in enumerate(VOIGT):

@@ -72,7 +72,7 @@ def _element(ue, dndX, wgp, p, form, need_k, fe, ke):
         for I in range(3):
             for J in range(3):
                 C[I, J] = F[0, I] * F[0, J] + F[1, I] * F[1, J] + F[2, I] * F[2, J]
-        energy += w * point_response(C, p, with_vol, S, D)
+        energy += w * point_response(C, p, with_vol, need_k, S, D)
         V += w
         v += w * det
         # B (6, 24) with engineering shear rows

@@ -91,8 +91,9 @@ def principal_derivatives(I1, I2, I3, wb, wbb, w, ww):
 
 
 @njit(cache=True)
-def stress_tangent(C, w, ww, S, D):
-    """S (3, 3) and D (6, 6) from the invariant derivatives w (3,), ww (3, 3) at C (3, 3)."""
+def stress_tangent(C, w, ww, need_d, S, D):
+    """S (3, 3) and, when need_d, D (6, 6) from the invariant derivatives w (3,),
+    ww (3, 3) at C (3, 3)."""
     Ci = np.empty((3, 3))
     I3 = inverse3(C, Ci)
     I1 = C[0, 0] + C[1, 1] + C[2, 2]
@@ -104,6 +105,8 @@ def stress_tangent(C, w, ww, S, D):
             A[1, i, j] = I1 * d - C[i, j]
             A[2, i, j] = I3 * Ci[i, j]
             S[i, j] = 2.0 * (w[0] * A[0, i, j] + w[1] * A[1, i, j] + w[2] * A[2, i, j])
+    if not need_d:
+        return
     for p in range(6):
         i, j = VOIGT[p, 0], VOIGT[p, 1]
         for q in range(p, 6):

@@ -8,8 +8,9 @@ from .mooney_rivlin import iso_energy, vol_energy
 
 
 @njit(cache=True)
-def point_response(C, p, with_vol, S, D):
-    """W at C (3, 3); fills S (3, 3), D (6, 6). with_vol adds U(J) to the isochoric part."""
+def point_response(C, p, with_vol, need_d, S, D):
+    """W at C (3, 3); fills S (3, 3) and, when need_d, D (6, 6). with_vol adds U(J) to
+    the isochoric part."""
     I1 = C[0, 0] + C[1, 1] + C[2, 2]
     I2 = 0.5 * (I1 * I1 - (C[0, 0] ** 2 + C[1, 1] ** 2 + C[2, 2] ** 2
                            + 2.0 * (C[0, 1] ** 2 + C[1, 2] ** 2 + C[0, 2] ** 2)))
@@ -28,7 +29,7 @@ def point_response(C, p, with_vol, S, D):
     w = np.empty(3)
     ww = np.empty((3, 3))
     principal_derivatives(I1, I2, I3, wb, wbb, w, ww)
-    stress_tangent(C, w, ww, S, D)
+    stress_tangent(C, w, ww, need_d, S, D)
     return W
 
 
@@ -37,5 +38,5 @@ def response(F, p, with_vol=True):
     F = np.asarray(F, dtype=np.float64)
     S = np.empty((3, 3))
     D = np.empty((6, 6))
-    W = point_response(F.T @ F, np.asarray(p, dtype=np.float64), with_vol, S, D)
+    W = point_response(F.T @ F, np.asarray(p, dtype=np.float64), with_vol, True, S, D)
     return W, F @ S, S, D

@@ -1,0 +1,91 @@
+"""Assembly, linear-solve and static-solve time against the number of DOF.
+
+Shell-like structured blocks (n x n x 3 bricks, like the face's three tissue layers),
+from about 1k to 60k DOF. Prints a table; with --csv PATH also writes it.
+
+    python benchmarks/solver_scaling.py [--sizes 10 20 40 70] [--csv out.csv]
+
+Times are the best of --repeat runs after a warm-up (numba compiled and cached).
+"""
+
+import argparse
+import csv
+import time
+
+import numpy as np
+
+import solver
+from solver.linsolve import available, make_solver
+from solver.meshgen import box
+
+
+def best_of(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def case(n, repeat):
+    mesh = box(n, n, 3, (2.0 * n, 2.0 * n, 6.0))
+    model = solver.Model(mesh)
+    model.fix(mesh.node_sets["zmin"])
+    model.prescribe(mesh.node_sets["zmax"], displacement=(0.0, 0.0, -1.5))
+    sysm = model.system()
+    u = np.zeros(sysm.ndof)
+    u[sysm.prescribed] = -1.5 * (np.arange(len(sysm.prescribed)) % 3 == 2)
+    sysm.assemble(u)                                                   # warm-up
+    row = {"bricks": mesh.n_bricks, "dof": sysm.ndof, "free_dof": len(sysm.free),
+           "assembly_s": best_of(lambda: sysm.assemble(u), repeat),
+           "residual_s": best_of(lambda: sysm.residual(u), repeat)}
+    r, data = sysm.assemble(u)
+    K = sysm.reduction.matrix(data)
+    b = -r[sysm.free]
+    row["nnz"] = K.nnz
+    for name in available():
+        lin = make_solver(name)
+
+        def solve():
+            lin.factorize(K)
+            lin.solve(b)
+        row[f"{name}_s"] = best_of(solve, repeat)
+    for name in available():
+        m = solver.Model(mesh, linear_solver=name)
+        m.fix(mesh.node_sets["zmin"])
+        m.prescribe(mesh.node_sets["zmax"], displacement=(0.0, 0.0, -1.5))
+        t = time.perf_counter()
+        res = m.solve_static()
+        row[f"static_{name}_s"] = time.perf_counter() - t
+        row["newton_iterations"] = res.iterations
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 40, 70])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--csv")
+    args = ap.parse_args(argv)
+    rows = []
+    for n in args.sizes:
+        rows.append(case(n, args.repeat))
+        r = rows[-1]
+        print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                        for k, v in r.items()), flush=True)
+    keys = list(rows[0])
+    print()
+    print(" | ".join(keys))
+    print(" | ".join("---" for _ in keys))
+    for r in rows:
+        print(" | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys))
+    if args.csv:
+        with open(args.csv, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=keys)
+            w.writeheader()
+            w.writerows(rows)
+
+
+if __name__ == "__main__":
+    main()
