@@ -41,7 +41,8 @@ class Fibre:
     """One muscle fibre: a chain of cable elements between consecutive points.
 
     muscle     one of MUSCLE_NAMES
-    side       'left' (x < 0), 'right' (x > 0) or 'mid' (a chain crossing x = 0)
+    side       'left' (x <= 0), 'right' (x >= 0), ends on x = 0 allowed; 'mid' for a chain
+               with points on both sides
     points     (k, 3) mm, the cable nodes in order
     insertion  (k,) bool, True where the point is attached to bone (fixed)
     """

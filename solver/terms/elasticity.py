@@ -1,9 +1,9 @@
-"""Hyperelastic soft tissue: the brick kernel over the whole mesh."""
+"""Hyperelastic soft tissue: the brick kernel over the mesh (or a subset of its bricks)."""
 
 import numpy as np
 
-from ..kernels.brick import FORMULATIONS, brick_forces
 from ..errors import ParameterError
+from ..kernels.brick import FORMULATIONS, brick_forces
 from .base import InvertedElement, Term
 
 
@@ -13,23 +13,26 @@ class Elasticity(Term):
     mesh         solver.Mesh
     params       (m, 6) per-brick law parameters (c10, c01, c20, c11, c02, d), or (6,)
     formulation  'mean_dilatation' (default, locking-free) or 'full'
+    subset       optional brick indices (k,): the term covers only those bricks, and
+                 params is then (k, 6) or (6,)
     """
 
     name = "elasticity"
 
-    def __init__(self, mesh, params, formulation="mean_dilatation"):
+    def __init__(self, mesh, params, formulation="mean_dilatation", subset=None):
         if formulation not in FORMULATIONS:
             raise ParameterError(f"formulation {formulation!r} is not one of "
                                  f"{sorted(FORMULATIONS)}")
         self.mesh = mesh
+        self.subset = np.arange(mesh.n_bricks) if subset is None else np.asarray(subset)
+        self.bricks = np.ascontiguousarray(mesh.bricks[self.subset])
         self.form = FORMULATIONS[formulation]
         self.formulation = formulation
-        self.base_params = np.ascontiguousarray(
-            np.broadcast_to(np.asarray(params, dtype=np.float64), (mesh.n_bricks, 6)))
-        self.params = self.base_params.copy()   # what the kernel sees (stiffening scales it)
-        m = mesh.n_bricks
-        self._dndX = np.ascontiguousarray(mesh.dn_dx)
-        self._w = np.ascontiguousarray(mesh.det_j)
+        m = len(self.subset)
+        self.params = np.ascontiguousarray(
+            np.broadcast_to(np.asarray(params, dtype=np.float64), (m, 6))).copy()
+        self._dndX = np.ascontiguousarray(mesh.dn_dx[self.subset])
+        self._w = np.ascontiguousarray(mesh.det_j[self.subset])
         self._fe = np.empty((m, 24))
         self._ke = np.empty((m, 24, 24))
         self._energy = np.empty(m)
@@ -37,14 +40,15 @@ class Elasticity(Term):
         self.min_det_f = 1.0
 
     def blocks(self):
-        return [self.mesh.bricks]
+        return [self.bricks]
 
     def assemble(self, state, asm, block_ids):
-        brick_forces(state.u, self.mesh.bricks, self._dndX, self._w, self.params, self.form,
+        brick_forces(state.u, self.bricks, self._dndX, self._w, self.params, self.form,
                      asm.need_k, self._fe, self._ke, self._energy, self._jmin)
         e = int(np.argmin(self._jmin))
         self.min_det_f = float(self._jmin[e])
         if not self.min_det_f > 0.0:
-            raise InvertedElement(self.name, int(self.mesh.element_ids[e]), self.min_det_f)
+            raise InvertedElement(self.name, int(self.mesh.element_ids[self.subset[e]]),
+                                  self.min_det_f)
         asm.energy += float(self._energy.sum())
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)

@@ -1,0 +1,104 @@
+"""A face model: an anatomy with its muscles, boundary conditions and lip outputs.
+
+    face = FaceModel(anatomy)                    # all ten muscles, stiffening on
+    face.set_activations({"OOP": 0.5})
+    res = face.solve_static()
+    face.lip_outputs()                           # aperture, protrusion, width (mm)
+
+Boundary conditions: the anatomy's 'fixed' nodes (skull attachments) are held; on a half
+face, u_x = 0 on the 'midsagittal' nodes. Only the driven muscles' cables are built, and
+stiffening only covers their neighbourhoods.
+"""
+
+import numpy as np
+
+from .activation import Activation
+from .anatomy.base import MUSCLE_NAMES
+from .errors import ParameterError
+from .materials import MooneyRivlin
+from .model import Model
+from .muscles import MuscleProperties
+from .terms.cables import Cables
+from .terms.stiffening import Stiffening, muscle_neighbourhoods
+
+LIP_OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
+               "lower_lip_protrusion")
+
+
+class FaceModel:
+    """anatomy; material (MooneyRivlin); muscles: the driven ones (default all ten);
+    stiffening on or off; properties: MuscleProperties; formulation; linear_solver."""
+
+    def __init__(self, anatomy, material=None, muscles=MUSCLE_NAMES, stiffening=True,
+                 properties=None, formulation="mean_dilatation", linear_solver="auto"):
+        unknown = [m for m in muscles if m not in MUSCLE_NAMES]
+        if unknown:
+            raise ParameterError(f"unknown muscle(s) {unknown}; known: {list(MUSCLE_NAMES)}")
+        self.anatomy = anatomy
+        self.muscles = tuple(m for m in MUSCLE_NAMES if m in muscles)
+        self.material = material or MooneyRivlin()
+        self.properties = properties or MuscleProperties()
+        self.model = Model(anatomy.mesh, self.material, formulation, linear_solver)
+        mesh = anatomy.mesh
+        self.model.fix(mesh.node_sets["fixed"])
+        if anatomy.half:
+            self.model.fix(mesh.node_sets["midsagittal"], components=(0,))
+        self.activation = Activation()
+        self.cables = None
+        self.stiffening = None
+        if self.muscles:
+            self.cables = Cables(anatomy, self.muscles, self.properties, self.activation)
+            self.model.add_term(self.cables)
+            if stiffening:
+                regions = muscle_neighbourhoods(anatomy, self.muscles,
+                                                self.properties.stiffening_radius)
+                self.stiffening = Stiffening(mesh, self.model.elasticity.params, regions,
+                                             self.properties, self.activation)
+                self.model.add_term(self.stiffening)
+
+    @property
+    def term_names(self):
+        return [t.name for t in self.model.terms]
+
+    def set_activations(self, values):
+        """values: dict muscle -> a in [0, 1]; an undriven muscle must stay at 0."""
+        values = dict(values)
+        for m, v in values.items():
+            if m in MUSCLE_NAMES and m not in self.muscles and v != 0:
+                raise ParameterError(f"muscle {m} is not driven in this model "
+                                     f"(driven: {', '.join(self.muscles) or 'none'})")
+        self.activation.set(values)
+
+    def solve_static(self, steps=2, **kw):
+        """Load-stepped equilibrium at the target activations; on failure the
+        displacements and the activations stay at the last converged state."""
+        res = self.model.solve_static(steps=steps, **kw)
+        if not res.converged:
+            self.activation.target = self.activation.start.copy()
+        return res
+
+    @property
+    def u(self):
+        return self.model.u
+
+    def lip_outputs(self, u=None):
+        """Lip measures (mm) for displacements u (n, 3) (default: the current state).
+
+        lip_aperture          z gap between the mid-sagittal lip edges, 0 when they touch
+        upper/lower_lip_protrusion  forward (y) displacement of each lip's front point
+        lip_protrusion        their mean
+        lip_width             distance between the mouth corners (2 |x| on a half face)
+        """
+        u = self.model.u if u is None else u
+        lm = self.anatomy.landmarks
+        x = self.anatomy.mesh.nodes + u
+        up, lo = x[lm["upper_lip_edge"]], x[lm["lower_lip_edge"]]
+        out = {"lip_aperture": max(0.0, float(up[2] - lo[2]))}
+        out["upper_lip_protrusion"] = float(u[lm["upper_lip_front"], 1])
+        out["lower_lip_protrusion"] = float(u[lm["lower_lip_front"], 1])
+        out["lip_protrusion"] = 0.5 * (out["upper_lip_protrusion"] + out["lower_lip_protrusion"])
+        if "corner_right" in lm:
+            out["lip_width"] = float(np.linalg.norm(x[lm["corner_right"]] - x[lm["corner_left"]]))
+        else:
+            out["lip_width"] = float(2.0 * abs(x[lm["corner_left"], 0]))
+        return out
