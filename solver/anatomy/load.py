@@ -1,0 +1,24 @@
+"""One entry point for every anatomy: 'generic' (procedural) or an ANSYS face folder."""
+
+from pathlib import Path
+
+from ..errors import FaceFMUError, ParameterError
+from .half import half_anatomy
+
+LEVELS = ("coarse", "medium", "paper", "fine")
+
+
+def load_anatomy(spec="generic", level="coarse", half=False):
+    """spec: 'generic' or a folder path; level: one of LEVELS (generic face only);
+    half: keep x <= 0 with the mid-sagittal nodes on the symmetry plane."""
+    if str(spec) == "generic":
+        if level not in LEVELS:
+            raise ParameterError(f"level {level!r} is not one of {list(LEVELS)}")
+        from .generic import generic_face
+        return generic_face(level=level, half=half)
+    folder = Path(spec)
+    if not folder.is_dir():
+        raise FaceFMUError(f"anatomy folder {folder} does not exist (or use 'generic')")
+    from .ansys import load_ansys_face
+    anatomy = load_ansys_face(folder)
+    return half_anatomy(anatomy) if half else anatomy

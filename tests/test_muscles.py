@@ -1,0 +1,131 @@
+"""Cables, embedding and stiffening on small synthetic anatomies."""
+
+import numpy as np
+import pytest
+
+import solver
+from solver.activation import Activation
+from solver.anatomy.base import Anatomy, Fibre
+from solver.meshgen import box
+from solver.muscles import MuscleProperties
+from solver.system import System
+from solver.terms.cables import Cables
+from solver.terms.stiffening import Stiffening, muscle_neighbourhoods
+
+
+def _anatomy(points, insertion=None, muscle="OOP"):
+    mesh = box(4, 2, 2, (8.0, 4.0, 4.0))
+    pts = np.asarray(points, dtype=float)
+    ins = np.zeros(len(pts), bool) if insertion is None else np.asarray(insertion)
+    return Anatomy("test", mesh, [Fibre(muscle, "left", pts, ins)], {})
+
+
+def _cables(anatomy, a=0.0):
+    act = Activation()
+    act.set({"OOP": a})
+    act.commit()
+    return Cables(anatomy, ["OOP"], MuscleProperties(), act)
+
+
+FIBRE = [[0.5, 1.3, 2.2], [3.1, 2.0, 1.7], [5.2, 2.9, 2.6], [7.5, 2.1, 1.9]]
+
+
+@pytest.mark.parametrize("a", [0.0, 0.7])
+def test_cable_tangent_matches_finite_differences(a, rng):
+    anat = _anatomy(FIBRE, insertion=[True, False, False, False])
+    cab = _cables(anat, a)
+    sysm = System([cab], anat.mesh.n_nodes, [])
+    u = (0.2 * anat.mesh.nodes).ravel() + 0.1 * rng.standard_normal(sysm.ndof)  # stretched
+    r, data = sysm.assemble(u)
+    assert np.all(cab.tension > 0)
+    K = sysm.pattern.matrix(data).toarray()
+    h = 1e-6
+    dofs = np.unique(3 * cab.nodes.ravel()[:, None] + np.arange(3))
+    Kn = np.zeros((sysm.ndof, len(dofs)))
+    for k, d in enumerate(dofs):
+        up, um = u.copy(), u.copy()
+        up[d] += h
+        um[d] -= h
+        Kn[:, k] = (sysm.residual(up) - sysm.residual(um)) / (2 * h)
+    assert np.abs(K[:, dofs] - Kn).max() <= 1e-6 * np.abs(K).max()
+
+
+def test_peak_force_at_full_activation_and_rest_length():
+    cab = _cables(_anatomy(FIBRE), 1.0)
+    sysm = System([cab], 45, [])
+    sysm.residual(np.zeros(sysm.ndof))
+    assert np.allclose(cab.tension, MuscleProperties().f_max["OOP"])
+
+
+def test_slack_cable_carries_no_force():
+    anat = _anatomy(FIBRE)
+    cab = _cables(anat, 0.3)
+    sysm = System([cab], anat.mesh.n_nodes, [])
+    # shorten everything by 40 %: beyond the active strain 0.3 * 0.5 = 0.15
+    u = (-0.4 * anat.mesh.nodes).ravel()
+    r = sysm.residual(u)
+    assert np.all(cab.tension == 0.0) and np.all(r == 0.0)
+
+
+def test_embedded_points_follow_their_host_bricks():
+    anat = _anatomy(FIBRE, insertion=[True, False, False, False])
+    cab = _cables(anat)
+    A = np.array([[0.1, 0.02, 0.0], [-0.05, 0.2, 0.03], [0.0, 0.04, -0.1]])
+    u = anat.mesh.nodes @ A.T
+    x = cab.point_positions(u)
+    X = cab.X
+    expect = X + X @ A.T
+    expect[0, 0] = X[0, 0]                      # the insertion stays on bone
+    assert np.allclose(x, expect, atol=1e-12)
+
+
+def test_activation_refuses_bad_values_by_name():
+    act = Activation()
+    for bad in (float("nan"), float("inf"), -0.1, 1.5, "x"):
+        with pytest.raises(solver.ParameterError, match="OOP"):
+            act.set({"OOP": bad})
+    with pytest.raises(solver.ParameterError, match="XYZ"):
+        act.set({"XYZ": 0.5})
+    act.set({"RIS": 0.2})
+    with pytest.raises(solver.ParameterError):
+        act.set({"RIS": 0.9, "OOP": float("nan")})     # all checked before any is set
+    assert act.target[3] == 0.2
+
+
+def test_stiffening_neighbourhood_and_factor():
+    anat = _anatomy([[0.5, 2.0, 2.0], [7.5, 2.0, 2.0]])     # along x through the middle
+    regions = muscle_neighbourhoods(anat, ["OOP"], {"OOP": 0.5})
+    # the fibre runs along the shared edge of the 4 middle columns of bricks: all 16 bricks
+    # touch it; a 0.5 mm sphere reaches no brick farther than 0.5 mm from the line
+    cent = anat.mesh.nodes[anat.mesh.bricks].mean(axis=1)
+    assert set(regions["OOP"]) == set(np.flatnonzero(np.abs(cent[:, 1] - 2) < 1.5))
+    act = Activation()
+    props = MuscleProperties()
+    st = Stiffening(anat.mesh, np.tile(solver.MooneyRivlin().params, (16, 1)), regions,
+                    props, act)
+    assert np.all(st.factors(1.0) == 1.0)
+    act.set({"OOP": 0.5})
+    assert np.allclose(st.factors(1.0), 1 + 0.5 * (props.stiffening_max - 1))
+
+
+def test_stiffened_tissue_deforms_less_and_is_stiffer_transversely():
+    """The paper's Eq. 2 argument: the transverse stiffness of an active region rises."""
+    mesh = box(6, 2, 2, (12.0, 4.0, 4.0))
+    fib = Fibre("OOP", "left", np.array([[0.0, 2.0, 2.0], [12.0, 2.0, 2.0]]),
+                np.array([True, True]))
+    anat = Anatomy("bar", mesh, [fib], {}, half=False)
+    anat.mesh.node_sets["fixed"] = mesh.node_sets["xmin"]
+    probe = np.intersect1d(mesh.node_sets["xmax"], mesh.node_sets["zmax"])
+
+    def deflection(a, stiffening):
+        face = solver.FaceModel(anat, muscles=("OOP",), stiffening=stiffening)
+        face.model.fix(mesh.node_sets["xmax"], components=(0,))
+        face.model.add_force(probe, (0.0, 0.0, -2e-4))
+        face.set_activations({"OOP": a})
+        res = face.solve_static()
+        assert res.converged
+        return -face.u[probe, 2].mean()
+
+    d0, d1, dfree = deflection(0.0, True), deflection(1.0, True), deflection(1.0, False)
+    assert d1 < 0.5 * d0                   # stiffness rises with activation
+    assert d1 < dfree                      # and stiffening is what does it
