@@ -1,7 +1,8 @@
 """Assembly, linear-solve and static-solve time against the number of DOF.
 
 Shell-like structured blocks (n x n x 3 bricks, like the face's three tissue layers),
-from about 1k to 60k DOF. Prints a table; with --csv PATH also writes it.
+from about 1k to 60k DOF, and the reference face's own tangent (all muscles, OOP at 0.5),
+where ../shared/data/reference-face is present. Prints a table; with --csv PATH also writes it.
 
     python benchmarks/solver_scaling.py [--sizes 10 20 40 70] [--csv out.csv]
 
@@ -62,27 +63,67 @@ def case(n, repeat):
     return row
 
 
+def face_case(repeat):
+    """Factorize + solve the reference face's tangent (all muscles, OOP at 0.5)."""
+    from pathlib import Path
+    from solver.anatomy.load import load_anatomy
+    folder = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference-face"
+    if not folder.is_dir():
+        print(f"(no reference face at {folder}: face case skipped)")
+        return None
+    face = solver.FaceModel(load_anatomy(folder))
+    face.set_activations({"OOP": 0.5})
+    sysm = face.model.system()
+    t = time.perf_counter()
+    res = face.solve_static()
+    static = time.perf_counter() - t
+    u = face.u.ravel()
+    row = {"bricks": face.anatomy.mesh.n_bricks, "dof": sysm.ndof,
+           "free_dof": len(sysm.free), "assembly_s": best_of(lambda: sysm.assemble(u), repeat),
+           "residual_s": best_of(lambda: sysm.residual(u), repeat)}
+    r, data = sysm.assemble(u)
+    K = sysm.reduction.matrix(data)
+    row["nnz"] = K.nnz
+    for name in available():
+        lin = make_solver(name)
+
+        def solve():
+            lin.factorize(K)
+            lin.solve(-r[sysm.free])
+        row[f"{name}_s"] = best_of(solve, repeat)
+    row[f"static_{available()[0]}_s"] = static
+    row["newton_iterations"] = res.iterations
+    return row
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 40, 70])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--csv")
+    ap.add_argument("--no-face", action="store_true", help="skip the reference-face case")
     args = ap.parse_args(argv)
     rows = []
+    if not args.no_face:
+        row = face_case(args.repeat)
+        if row:
+            rows.append({"case": "reference face", **row})
+            print(rows[-1], flush=True)
     for n in args.sizes:
-        rows.append(case(n, args.repeat))
+        rows.append({"case": f"box {n}x{n}x3", **case(n, args.repeat)})
         r = rows[-1]
         print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in r.items()), flush=True)
-    keys = list(rows[0])
+    keys = list(dict.fromkeys(k for r in rows for k in r))
     print()
     print(" | ".join(keys))
     print(" | ".join("---" for _ in keys))
     for r in rows:
-        print(" | ".join(f"{r[k]:.3g}" if isinstance(r[k], float) else str(r[k]) for k in keys))
+        print(" | ".join(f"{r[k]:.3g}" if isinstance(r.get(k), float) else str(r.get(k, ""))
+                         for k in keys))
     if args.csv:
         with open(args.csv, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=keys)
+            w = csv.DictWriter(fh, fieldnames=keys, restval="")
             w.writeheader()
             w.writerows(rows)
 

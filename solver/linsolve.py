@@ -1,7 +1,7 @@
 """Sparse direct solvers behind one interface: factorize once, solve many right-hand sides.
 
 ``superlu``  scipy.sparse.linalg.splu (always available)
-``pardiso``  Intel MKL PARDISO through pypardiso (x86_64 wheels on PyPI)
+``pardiso``  Intel MKL PARDISO through pypardiso (x86_64 wheels on PyPI), symmetric
 ``auto``     the fastest available, by benchmarks/linear_solvers.py on this project's
              matrices: pardiso where importable, else superlu.
 """
@@ -31,20 +31,36 @@ class SuperLU:
 
 
 class Pardiso:
+    """MKL PARDISO, real symmetric indefinite (mtype -2) on the upper triangle; the
+    symbolic analysis (ordering) is done once per sparsity pattern and reused."""
+
     name = "pardiso"
 
     def __init__(self):
         import pypardiso
-        self._solver = pypardiso.PyPardisoSolver()
-        self._K = None
+        self._p = pypardiso.PyPardisoSolver(mtype=-2)
+        self._pattern = None
+        self._U = None
+
+    def _phase(self, phase, b):
+        self._p.set_phase(phase)
+        return self._p._call_pardiso(self._U, b)
 
     def factorize(self, K):
-        self._K = sp.csr_matrix(K)
-        self._K.sort_indices()
-        self._solver.factorize(self._K)
+        U = sp.triu(sp.csr_matrix(K), format="csr")
+        U.sort_indices()
+        self._U = U
+        if not np.all(np.diff(U.indptr)):
+            raise RuntimeError("matrix is singular: an empty row")
+        key = (U.shape[0], U.nnz, hash(U.indptr.tobytes()), hash(U.indices.tobytes()))
+        zero = np.zeros((U.shape[0], 1))
+        if key != self._pattern:
+            self._phase(11, zero)
+            self._pattern = key
+        self._phase(22, zero)
 
     def solve(self, b):
-        return self._solver.solve(self._K, np.asarray(b, dtype=np.float64))
+        return self._phase(33, np.asarray(b, dtype=np.float64))
 
 
 def available():

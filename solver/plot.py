@@ -1,0 +1,110 @@
+"""Pictures of an anatomy with matplotlib (Agg, no display needed).
+
+    plot_anatomy(anatomy, "face.png", displacement=face.u, title="OOP 50 %")
+
+draws two panels, a three-quarter front view and a side view (the face looking right), of
+the skin (boundary faces of the mesh, less those lying on bone) as a light translucent
+surface, the muscle fibres coloured by muscle, the fixed nodes faintly and the lip
+landmarks. With a displacement everything is drawn deformed (fibres through the mesh,
+see solver.io.export.fibre_displacements).
+"""
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LightSource
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+from .anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from .io.export import fibre_displacements
+
+MUSCLE_COLOURS = dict(zip(MUSCLE_NAMES, (
+    "#1f77b4", "#17becf", "#2ca02c", "#bcbd22", "#9467bd",
+    "#8c564b", "#ff7f0e", "#e377c2", "#d62728", "#7f0000")))
+SKIN = "#f2c9a8"
+VIEWS = (("three-quarter front", 18, 55), ("side", 0, 0))       # (label, elev, azim) degrees
+
+
+def plot_anatomy(anatomy, path, displacement=None, title=None):
+    """Write a PNG of anatomy (optionally deformed by displacement (n, 3) mm) to path."""
+    mesh = anatomy.mesh
+    u = np.zeros_like(mesh.nodes) if displacement is None else np.asarray(displacement)
+    x = mesh.nodes + u
+    fibres = [f.points + d for f, d in zip(anatomy.fibres, _fibre_moves(anatomy, displacement))]
+    skin = x[skin_faces(mesh)]
+    fig = Figure(figsize=(13, 6.8), dpi=110)
+    FigureCanvasAgg(fig)
+    for i, (label, elev, azim) in enumerate(VIEWS):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False,
+                             proj_type="ortho")
+        _draw(ax, anatomy, x, skin, fibres)
+        _frame(ax, x, elev, azim, label)
+    _legend(fig, anatomy)
+    fig.suptitle(title or _default_title(anatomy, displacement), fontsize=14)
+    fig.subplots_adjust(left=0.0, right=1.0, top=0.93, bottom=0.13, wspace=0.0)
+    fig.savefig(path, format="png")
+    return path
+
+
+def skin_faces(mesh):
+    """(k, 4) boundary faces of mesh not lying on bone (not all four nodes fixed)."""
+    faces = mesh.boundary_faces()
+    fixed = np.zeros(mesh.n_nodes, dtype=bool)
+    fixed[mesh.node_sets.get("fixed", [])] = True
+    return faces[~fixed[faces].all(axis=1)]
+
+
+def _fibre_moves(anatomy, displacement):
+    """Per-fibre point displacements (k, 3)."""
+    if displacement is None or not anatomy.fibres:
+        return [np.zeros_like(f.points) for f in anatomy.fibres]
+    return fibre_displacements(anatomy, np.asarray(displacement, dtype=np.float64))
+
+
+def _draw(ax, anatomy, x, skin, fibres):
+    """Skin, fixed nodes, fibres and landmarks on one 3D axes, back to front."""
+    shade = LightSource(azdeg=300, altdeg=35)
+    ax.add_collection3d(Poly3DCollection(skin, facecolors=SKIN, edgecolors=(0.45, 0.3, 0.2, 0.12),
+                                         linewidths=0.3, alpha=0.22, shade=True,
+                                         lightsource=shade, zorder=1))
+    fixed = x[anatomy.mesh.node_sets.get("fixed", [])]
+    ax.scatter(*fixed.T, s=1.5, c="0.45", alpha=0.25, linewidths=0, zorder=2)
+    for m in MUSCLE_NAMES:
+        segs = [p for f, p in zip(anatomy.fibres, fibres) if f.muscle == m]
+        if segs:
+            ax.add_collection3d(Line3DCollection(segs, colors=MUSCLE_COLOURS[m], linewidths=2.2,
+                                                 zorder=3))
+    lm = x[list(anatomy.landmarks.values())]
+    ax.scatter(*lm.T, s=28, c="white", edgecolors="black", linewidths=1.0, zorder=4,
+               depthshade=False)
+
+
+def _frame(ax, x, elev, azim, label):
+    """Equal-aspect limits around x (n, 3), the view, and a quiet frame."""
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.02
+    for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        set_lim(c - half, c + half)
+    ax.set_box_aspect((1, 1, 1), zoom=1.25)
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_axis_off()
+    ax.set_title(label, y=0.98, fontsize=11, color="0.3")
+
+
+def _legend(fig, anatomy):
+    present = [m for m in MUSCLE_NAMES if anatomy.muscle_fibres(m)]
+    handles = [Line2D([], [], color=MUSCLE_COLOURS[m], lw=3,
+                      label=f"{m}  {MUSCLE_FULL_NAMES[m]}") for m in present]
+    handles += [Line2D([], [], ls="", marker="o", mfc="white", mec="black", label="lip landmarks"),
+                Line2D([], [], ls="", marker=".", color="0.55", label="fixed nodes (bone)")]
+    fig.legend(handles=handles, loc="lower center", ncol=4, frameon=False, fontsize=9,
+               handlelength=2.2, columnspacing=1.6)
+
+
+def _default_title(anatomy, displacement):
+    mesh = anatomy.mesh
+    state = "deformed" if displacement is not None else "rest"
+    side = ", half" if anatomy.half else ""
+    return (f"{anatomy.name} face{side} ({state}): {mesh.n_nodes} nodes, {mesh.n_bricks} "
+            f"bricks, {len(anatomy.fibres)} fibres")
