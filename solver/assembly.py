@@ -41,6 +41,8 @@ class Pattern:
         self.indptr = np.zeros(ndof + 1, dtype=np.int32)
         np.cumsum(np.bincount(ur, minlength=ndof), out=self.indptr[1:])
         self.nnz = len(ukey)
+        self._keys = ukey
+        self.diagonal = self.locate(diag, diag)                          # (ndof,) data index
         self.dofs = dofs
         self.index = []
         start = 0
@@ -51,6 +53,14 @@ class Pattern:
 
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.ndof, self.ndof))
+
+    def locate(self, rows, cols):
+        """Data indices of entries (rows, cols), which must be in the pattern."""
+        keys = np.asarray(rows, dtype=np.int64) * self.ndof + np.asarray(cols, dtype=np.int64)
+        idx = np.searchsorted(self._keys, keys)
+        if np.any(idx >= self.nnz) or np.any(self._keys[np.minimum(idx, self.nnz - 1)] != keys):
+            raise ValueError("entries outside the sparsity pattern")
+        return idx
 
 
 class Assembly:
@@ -71,6 +81,11 @@ class Assembly:
         scatter_vectors(fe, self.pattern.dofs[block], self.residual)
         if self.need_k and ke is not None:
             scatter_matrices(ke, self.pattern.index[block], self.data)
+
+    def add_diagonal(self, values):
+        """values (ndof,) onto the tangent's diagonal."""
+        if self.need_k:
+            self.data[self.pattern.diagonal] += values
 
     def matrix(self):
         return self.pattern.matrix(self.data)

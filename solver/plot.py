@@ -11,7 +11,7 @@ see solver.io.export.fibre_displacements).
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import LightSource
+from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
@@ -38,11 +38,11 @@ def plot_anatomy(anatomy, path, displacement=None, title=None):
     for i, (label, elev, azim) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False,
                              proj_type="ortho")
-        _draw(ax, anatomy, x, skin, fibres)
+        _draw(ax, anatomy, x, skin, fibres, _camera(elev, azim))
         _frame(ax, x, elev, azim, label)
     _legend(fig, anatomy)
     fig.suptitle(title or _default_title(anatomy, displacement), fontsize=14)
-    fig.subplots_adjust(left=0.0, right=1.0, top=0.93, bottom=0.13, wspace=0.0)
+    fig.subplots_adjust(left=0.0, right=1.0, top=0.95, bottom=0.12, wspace=0.0)
     fig.savefig(path, format="png")
     return path
 
@@ -62,14 +62,33 @@ def _fibre_moves(anatomy, displacement):
     return fibre_displacements(anatomy, np.asarray(displacement, dtype=np.float64))
 
 
-def _draw(ax, anatomy, x, skin, fibres):
+def _camera(elev, azim):
+    """(3,) unit vector from the scene towards matplotlib's camera."""
+    e, a = np.radians(elev), np.radians(azim)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def _skin_colours(skin, camera):
+    """(k, 4) RGBA of the skin quads (k, 4, 3) seen from camera (3,): front faces lit by a
+    head lamp above the camera, back faces (the far side, the mouth's inside) fainter."""
+    normal = np.cross(skin[:, 2] - skin[:, 0], skin[:, 3] - skin[:, 1])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    lamp = camera + np.array([0.0, 0.0, 0.6])
+    lit = np.abs(normal @ (lamp / np.linalg.norm(lamp)))
+    front = normal @ camera > 0
+    rgba = np.empty((len(skin), 4))
+    rgba[:, :3] = np.asarray(to_rgb(SKIN)) * (0.62 + 0.38 * lit)[:, None]
+    rgba[:, 3] = np.where(front, 0.30, 0.06)
+    return rgba
+
+
+def _draw(ax, anatomy, x, skin, fibres, camera):
     """Skin, fixed nodes, fibres and landmarks on one 3D axes, back to front."""
-    shade = LightSource(azdeg=300, altdeg=35)
-    ax.add_collection3d(Poly3DCollection(skin, facecolors=SKIN, edgecolors=(0.45, 0.3, 0.2, 0.12),
-                                         linewidths=0.3, alpha=0.22, shade=True,
-                                         lightsource=shade, zorder=1))
+    ax.add_collection3d(Poly3DCollection(skin, facecolors=_skin_colours(skin, camera),
+                                         edgecolors=(0.45, 0.3, 0.2, 0.10), linewidths=0.3,
+                                         zorder=1))
     fixed = x[anatomy.mesh.node_sets.get("fixed", [])]
-    ax.scatter(*fixed.T, s=1.5, c="0.45", alpha=0.25, linewidths=0, zorder=2)
+    ax.scatter(*fixed.T, s=2.5, c="#5b6b7c", alpha=0.35, linewidths=0, zorder=2)
     for m in MUSCLE_NAMES:
         segs = [p for f, p in zip(anatomy.fibres, fibres) if f.muscle == m]
         if segs:
@@ -98,7 +117,7 @@ def _legend(fig, anatomy):
                       label=f"{m}  {MUSCLE_FULL_NAMES[m]}") for m in present]
     handles += [Line2D([], [], ls="", marker="o", mfc="white", mec="black", label="lip landmarks"),
                 Line2D([], [], ls="", marker=".", color="0.55", label="fixed nodes (bone)")]
-    fig.legend(handles=handles, loc="lower center", ncol=4, frameon=False, fontsize=9,
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.01), ncol=4, frameon=False, fontsize=9,
                handlelength=2.2, columnspacing=1.6)
 
 
