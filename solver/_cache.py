@@ -1,6 +1,11 @@
 """Where compiled numba kernels are cached: a user cache directory that survives temporary
 folders (an FMU is extracted to a new temporary folder at every start).
 
+numba's own locator files a kernel under a hash of its source file's absolute path, so a
+fresh extraction folder would miss the cache every time. The locator below files the
+solver's kernels under their module name instead; numba's freshness check (a hash of the
+source file's content) still recompiles them when the code changes.
+
 Order: $NUMBA_CACHE_DIR if set, else $FACEFMU_CACHE_DIR/numba, else
 $XDG_CACHE_HOME/facefmu/numba, else ~/.cache/facefmu/numba. A directory that cannot be
 written falls back to a fresh temporary directory, with a warning: kernels then compile
@@ -46,4 +51,32 @@ def configure_numba_cache() -> Path:
     return wanted
 
 
+def _impl(caching):
+    """numba's cache implementation class (renamed from _CacheImpl to CacheImpl in 0.60)."""
+    return getattr(caching, "CacheImpl", None) or caching._CacheImpl
+
+
+def _install_stable_locator():
+    from numba.core import caching
+
+    class StableLocator(caching.UserProvidedCacheLocator):
+        """Kernels of the `solver` package, filed by module name under the cache dir."""
+
+        def __init__(self, py_func, py_file):
+            super().__init__(py_func, py_file)
+            import numba.core.config as config
+            self._cache_path = os.path.join(config.CACHE_DIR, "facefmu",
+                                            py_func.__module__.rpartition(".")[0])
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not getattr(py_func, "__module__", "").startswith("solver."):
+                return None
+            return super().from_function(py_func, py_file)
+
+    if not any(c.__name__ == "StableLocator" for c in _impl(caching)._locator_classes):
+        _impl(caching)._locator_classes.insert(0, StableLocator)
+
+
 CACHE_DIR = configure_numba_cache()
+_install_stable_locator()

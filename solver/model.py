@@ -73,8 +73,8 @@ class Model:
         params = material.params if isinstance(material, MooneyRivlin) else material
         self.mesh = mesh
         self.u = np.zeros((mesh.n_nodes, 3))
-        self.forces = NodalForces(3 * mesh.n_nodes)
-        self.terms = [Elasticity(mesh, params, formulation), self.forces]
+        self._forces = None
+        self.terms = [Elasticity(mesh, params, formulation)]
         self._target = {}                 # dof -> final prescribed value, mm
         self._system = None
         self.linear_solver = make_solver(linear_solver)
@@ -112,6 +112,14 @@ class Model:
             raise ParameterError("nodal force has a non-finite value")
         dofs = (3 * ids[:, None] + np.arange(3)).ravel()
         self.forces.add(dofs, f.ravel())
+
+    @property
+    def forces(self):
+        """The nodal-force term, created (and added to the terms) on first use."""
+        if self._forces is None:
+            self._forces = NodalForces(3 * self.mesh.n_nodes)
+            self.add_term(self._forces)
+        return self._forces
 
     def add_term(self, term):
         self.terms.append(term)

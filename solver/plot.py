@@ -2,12 +2,14 @@
 
     plot_anatomy(anatomy, "face.png", displacement=face.u, title="OOP 50 %")
 
-draws two panels, a three-quarter front view and a side view (the face looking right), of
-the skin (boundary faces of the mesh, less those lying on bone) as a light translucent
-surface, the muscle fibres coloured by muscle, the fixed nodes faintly and the lip
+draws two panels, a three-quarter front view and a side view from the subject's left, of
+the outer skin (see skin_faces) as a light translucent surface, the muscle fibres coloured by muscle, the fixed nodes faintly and the lip
 landmarks. With a displacement everything is drawn deformed (fibres through the mesh,
 see solver.io.export.fibre_displacements).
 """
+
+from itertools import product
+from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -23,7 +25,8 @@ MUSCLE_COLOURS = dict(zip(MUSCLE_NAMES, (
     "#1f77b4", "#17becf", "#2ca02c", "#bcbd22", "#9467bd",
     "#8c564b", "#ff7f0e", "#e377c2", "#d62728", "#7f0000")))
 SKIN = "#f2c9a8"
-VIEWS = (("three-quarter front", 18, 55), ("side", 0, 0))       # (label, elev, azim) degrees
+# (label, elev, azim) degrees: from the subject's left (x < 0), which a half face keeps
+VIEWS = (("three-quarter front, left", 18, 125), ("left side", 0, 180))
 
 
 def plot_anatomy(anatomy, path, displacement=None, title=None):
@@ -33,7 +36,7 @@ def plot_anatomy(anatomy, path, displacement=None, title=None):
     x = mesh.nodes + u
     fibres = [f.points + d for f, d in zip(anatomy.fibres, _fibre_moves(anatomy, displacement))]
     skin = x[skin_faces(mesh)]
-    fig = Figure(figsize=(13, 6.8), dpi=110)
+    fig = Figure(figsize=(13, 6.4), dpi=110)
     FigureCanvasAgg(fig)
     for i, (label, elev, azim) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False,
@@ -43,16 +46,22 @@ def plot_anatomy(anatomy, path, displacement=None, title=None):
     _legend(fig, anatomy)
     fig.suptitle(title or _default_title(anatomy, displacement), fontsize=14)
     fig.subplots_adjust(left=0.0, right=1.0, top=0.95, bottom=0.12, wspace=0.0)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, format="png")
     return path
 
 
 def skin_faces(mesh):
-    """(k, 4) boundary faces of mesh not lying on bone (not all four nodes fixed)."""
+    """(k, 4) node ids of the outer skin: the boundary faces of mesh that are not on bone
+    (not all four nodes fixed) and face away from the mesh's centroid (outward normal),
+    which leaves out the inside of the mouth, cheeks and nostrils of a face shell."""
     faces = mesh.boundary_faces()
     fixed = np.zeros(mesh.n_nodes, dtype=bool)
     fixed[mesh.node_sets.get("fixed", [])] = True
-    return faces[~fixed[faces].all(axis=1)]
+    quad = mesh.nodes[faces]
+    normal = np.cross(quad[:, 2] - quad[:, 0], quad[:, 3] - quad[:, 1])
+    away = np.einsum("kj,kj->k", normal, quad.mean(axis=1) - mesh.nodes.mean(axis=0)) > 0
+    return faces[away & ~fixed[faces].all(axis=1)]
 
 
 def _fibre_moves(anatomy, displacement):
@@ -88,7 +97,7 @@ def _draw(ax, anatomy, x, skin, fibres, camera):
                                          edgecolors=(0.45, 0.3, 0.2, 0.10), linewidths=0.3,
                                          zorder=1))
     fixed = x[anatomy.mesh.node_sets.get("fixed", [])]
-    ax.scatter(*fixed.T, s=2.5, c="#5b6b7c", alpha=0.35, linewidths=0, zorder=2)
+    ax.scatter(*fixed.T, s=4, c="#5b6b7c", alpha=0.45, linewidths=0, zorder=2)
     for m in MUSCLE_NAMES:
         segs = [p for f, p in zip(anatomy.fibres, fibres) if f.muscle == m]
         if segs:
@@ -105,10 +114,20 @@ def _frame(ax, x, elev, azim, label):
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.02
     for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
         set_lim(c - half, c + half)
-    ax.set_box_aspect((1, 1, 1), zoom=1.25)
+    ax.set_box_aspect((1, 1, 1), zoom=_zoom(x, centre, half, elev, azim))
     ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
     ax.set_title(label, y=0.98, fontsize=11, color="0.3")
+
+
+def _zoom(x, centre, half, elev, azim):
+    """Zoom that fills the panel with x (n, 3) rather than with its bounding cube."""
+    e, a = np.radians(elev), np.radians(azim)
+    screen = np.array([[-np.sin(a), np.cos(a), 0.0],
+                       [-np.sin(e) * np.cos(a), -np.sin(e) * np.sin(a), np.cos(e)]])
+    cube = centre + half * np.array(list(product((-1, 1), repeat=3)))
+    span = lambda p: np.ptp(p @ screen.T, axis=0)       # noqa: E731  (width, height)
+    return float(np.clip(0.95 * (span(cube) / span(x)).min(), 1.0, 1.8))
 
 
 def _legend(fig, anatomy):

@@ -128,7 +128,7 @@ def _blocks(cells, types):
     cut = np.flatnonzero(types[1:] != types[:-1]) + 1
     bounds = np.concatenate([[0], cut, [len(types)]])
     runs = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-    return [(str(types[r.start]), np.array([c for c in cells[r]])) for r in runs], runs
+    return [(str(types[r.start]), np.array(cells[r])) for r in runs], runs
 
 
 def _rotations():
@@ -147,10 +147,9 @@ ROTATIONS = _rotations()
 
 
 def vtk_cells(bricks):
-    """Connectivity of bricks (m, 8) in VTK order: object array (m,) of (8,) or (6,) node
-    ids, and the cell types (m,) 'hexahedron' or 'wedge'."""
-    cells = np.empty(len(bricks), dtype=object)
-    cells[:] = list(bricks)
+    """Connectivity of bricks (m, 8) in VTK order: list (m,) of (8,) or (6,) node ids, and
+    the cell types (m,) 'hexahedron' or 'wedge'."""
+    cells = list(bricks)
     types = np.full(len(bricks), "hexahedron", dtype=object)
     distinct = 8 - (np.diff(np.sort(bricks, axis=1), axis=1) == 0).sum(axis=1)
     cand = bricks[:, ROTATIONS]                                     # (m, 24, 8)

@@ -18,10 +18,11 @@ the motion of the closest point, and needs no division by |d|. For a rigid maste
 the slave block is kept: d2F/dx dx = I - sum_ij tau_i M^-1_ij tau_j, which is n n on a
 face, I - t t on an edge and I at a vertex.
 
-Side. The signed gap is g = -|d| when (x - c) . N_f < 0 for the pseudo-normal N_f of the
+Side. The signed gap is g = -|d| when (x - c) . N_f <= 0 for the pseudo-normal N_f of the
 closest feature (face normal, mean of the two face normals of an edge, angle-weighted
-normal of a vertex), +|d| otherwise. A closest point on a free boundary edge or vertex of
-an open surface has no side: such a node is out of contact.
+normal of a vertex), +|d| otherwise; g <= 0 is active (a touching node, g = 0, carries
+stiffness but no force). A closest point on a free boundary edge or vertex of an open
+surface has no side: such a node is out of contact.
 """
 
 import numpy as np
@@ -193,7 +194,7 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
     (zero where inactive), gap (s,) (signed; inf without a candidate or on a free
-    boundary) and tri (s,) (nearest triangle or -1). Active: g < 0 and |g| <= depth.
+    boundary) and tri (s,) (nearest triangle or -1). Active: g <= 0 and |g| <= depth.
     Returns the energy."""
     energy = 0.0
     w = np.empty(3)
@@ -213,7 +214,7 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
         c = w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2]
         sd = side(xs[i], c, t, region, tris, fn, en, vn, free_edge, free_vertex)
         dist = np.sqrt(d2)
-        if not sd < 0.0 or dist > depth:
+        if not sd <= 0.0 or dist > depth:
             gap[i] = dist if not np.isnan(sd) else np.inf
             continue
         gap[i] = -dist
@@ -228,7 +229,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
     current node positions x (n, 3); the candidate pairs of slave i are
     ptr[i]:ptr[i + 1], with triangles pair_tri (p,). Fills fe (p, 12), ke (p, 12, 12)
     (zero but for each slave's active pair), gap (s,) and active (s,) (the active pair
-    or -1). Active: g < 0 and |g| <= depth. Returns the energy."""
+    or -1). Active: g <= 0 and |g| <= depth. Returns the energy."""
     energy = 0.0
     w = np.empty(3)
     xm = np.empty((3, 3))
@@ -249,9 +250,20 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
         c = w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2]
         sd = side(xs, c, t, region, tris, fn, en, vn, free_edge, free_vertex)
         dist = np.sqrt(d2)
-        if not sd < 0.0 or dist > depth:
+        if not sd <= 0.0 or dist > depth:
             gap[i] = dist if not np.isnan(sd) else np.inf
             continue
         gap[i], active[i] = -dist, p
         energy += pair_derivatives(xs, xm, region, w, k[i], 4, need_k, fe[p], ke[p])
     return energy
+
+
+@njit(cache=True)
+def pair_distances(xs, xv, tris, pair_tri, d2):
+    """d2 (p,): squared distance of each point xs (p, 3) to its triangle pair_tri (p,)."""
+    w = np.empty(3)
+    for p in range(xs.shape[0]):
+        t = pair_tri[p]
+        closest_point(xs[p], xv[tris[t, 0]], xv[tris[t, 1]], xv[tris[t, 2]], w)
+        d = xs[p] - (w[0] * xv[tris[t, 0]] + w[1] * xv[tris[t, 1]] + w[2] * xv[tris[t, 2]])
+        d2[p] = d @ d

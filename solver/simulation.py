@@ -1,0 +1,135 @@
+"""A simulation: a scene's anatomy, terms and analysis behind one small runtime API.
+
+    sim = Simulation("rounding_u")              # a built-in scene, a file path or a Scene
+    sim.set_activations({"OOP": 0.6})
+    stats = sim.step(sim.t + 0.01)              # transient: adaptive substeps to the time
+    sim.outputs()                               # lip measures (mm) and solver statistics
+    state = sim.get_state(); sim.set_state(state)
+
+This is what the FMU and the command line drive; it holds no physics of its own.
+A step that fails (after every cutback) leaves the simulation at its last good state
+and returns stats with converged = False.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from .anatomy.load import load_anatomy
+from .face import FaceModel
+from .materials import MooneyRivlin
+from .muscles import MuscleProperties
+from .scene import GRAVITY, Scene, load_scene
+from .transient import StepStats, Transient
+from .units import kg_per_m3
+
+BUILTIN_DIR = Path(__file__).parent / "scenes"
+
+
+def builtin_scenes():
+    """Names of the built-in scenes."""
+    return sorted(p.stem for p in BUILTIN_DIR.glob("*.toml"))
+
+
+def resolve_scene(scene):
+    """A Scene from a Scene, a built-in name or a TOML path."""
+    if isinstance(scene, Scene):
+        return scene
+    path = BUILTIN_DIR / f"{scene}.toml"
+    if path.is_file():
+        return load_scene(path)
+    return load_scene(scene)
+
+
+def _contact_terms(anatomy, scene):
+    from .terms.contact import build_contact_terms
+    return build_contact_terms(anatomy, lips=scene.lip_contact, teeth=scene.teeth_contact)
+
+
+class Simulation:
+    """scene: Scene, built-in name or TOML path; overrides: Scene fields to replace."""
+
+    def __init__(self, scene="default", anatomy=None, **overrides):
+        scene = resolve_scene(scene)
+        self.scene = scene.with_overrides(**overrides) if overrides else scene
+        sc = self.scene
+        self.anatomy = anatomy or load_anatomy(sc.anatomy, sc.level, sc.half)
+        props = MuscleProperties(force_scale={m: sc.force_scale.get(m, 1.0)
+                                              for m in sc.force_scale})
+        self.face = FaceModel(self.anatomy, MooneyRivlin(), muscles=sc.driven,
+                              stiffening=sc.stiffening, properties=props,
+                              formulation=sc.formulation, linear_solver=sc.linear_solver)
+        model = self.face.model
+        model.newton_options.rtol = sc.newton_rtol
+        density = kg_per_m3(sc.density)
+        if GRAVITY[sc.gravity] is not None:
+            from .terms.gravity import Gravity
+            model.add_term(Gravity(self.anatomy.mesh, density, GRAVITY[sc.gravity]))
+        self.contact = []
+        if sc.lip_contact or sc.teeth_contact:
+            self.contact = _contact_terms(self.anatomy, sc)
+            for term in self.contact:
+                model.add_term(term)
+        self.integrator = None
+        if sc.analysis == "transient":
+            self.integrator = Transient(model, density, sc.alpha, sc.beta, sc.inertia,
+                                        sc.damping, sc.substep_tol, sc.max_substep,
+                                        sc.min_substep, sc.hold)
+        self.t = 0.0
+        self.last = StepStats()
+        if GRAVITY[sc.gravity] is not None:          # start from the rest state under gravity
+            res = self.face.solve_static()
+            if not res.converged:
+                raise RuntimeError(f"no equilibrium under gravity: {res.reason}")
+
+    @property
+    def term_names(self):
+        return self.face.term_names
+
+    def set_activations(self, values):
+        self.face.set_activations(values)
+
+    def step(self, t_end):
+        """Advance to t_end (transient) or solve the equilibrium (static); StepStats."""
+        if self.integrator is not None:
+            self.integrator.t = self.t
+            stats = self.integrator.advance(t_end)
+            if not stats.converged:
+                self.face.activation.target = self.face.activation.start.copy()
+        else:
+            res = self.face.solve_static()
+            stats = StepStats(converged=res.converged, substeps=len(res.steps),
+                              newton_iterations=res.iterations, cutbacks=res.cutbacks,
+                              reason=res.reason)
+        if stats.converged:
+            self.t = float(t_end)
+        self.last = stats
+        return stats
+
+    def outputs(self):
+        out = self.face.lip_outputs()
+        out["contact_force"] = float(sum(getattr(t, "total_force", 0.0) for t in self.contact))
+        out["newton_iterations"] = self.last.newton_iterations
+        out["substeps"] = self.last.substeps
+        out["cutbacks"] = self.last.cutbacks
+        return out
+
+    def get_state(self):
+        """Everything needed to resume: copies of arrays, plain floats."""
+        v = self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)
+        return {"t": self.t, "u": self.face.u.copy(), "v": v.copy(),
+                "activation": self.face.activation.start.copy(),
+                "h": self.integrator.h if self.integrator is not None else 0.0}
+
+    def set_state(self, state):
+        self.t = float(state["t"])
+        self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
+        self.face.activation.start = np.array(state["activation"], dtype=float)
+        self.face.activation.target = self.face.activation.start.copy()
+        for term in self.contact:
+            if hasattr(term, "reset"):
+                term.reset()
+        if self.integrator is not None:
+            self.integrator.v = np.array(state["v"], dtype=float).reshape(-1, 3)
+            self.integrator.h = float(state["h"])
+            self.integrator.t = self.t
