@@ -17,6 +17,11 @@ import tempfile
 import warnings
 from pathlib import Path
 
+# Before numba is imported: numba loads Intel's SVML when it finds it (MKL's dependencies
+# bring one); imported inside an FMU beside MKL this corrupted the heap of fmpy's process
+# ("corrupted double-linked list" at exit). SVML only speeds up vectorized math calls.
+os.environ.setdefault("NUMBA_DISABLE_INTEL_SVML", "1")
+
 
 def user_cache_dir() -> Path:
     """The FaceFMU cache root (numba kernels, trained reduced models)."""
@@ -78,5 +83,16 @@ def _install_stable_locator():
         _impl(caching)._locator_classes.insert(0, StableLocator)
 
 
+def configure_threading_layer():
+    """numba's 'workqueue' threading layer unless the user chose one: the TBB and OpenMP
+    layers load a second threading runtime beside MKL's (PARDISO) and the process then
+    aborts at exit ("corrupted double-linked list", seen through fmpy). Our kernels hold
+    the GIL, so workqueue's lack of thread safety never bites; assembly is as fast."""
+    if not os.environ.get("NUMBA_THREADING_LAYER"):
+        import numba.core.config as config
+        config.THREADING_LAYER = "workqueue"
+
+
+configure_threading_layer()
 CACHE_DIR = configure_numba_cache()
 _install_stable_locator()

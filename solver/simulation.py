@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .anatomy.base import MUSCLE_NAMES
 from .anatomy.load import load_anatomy
 from .face import FaceModel
 from .materials import MooneyRivlin
@@ -47,15 +48,16 @@ def _contact_terms(anatomy, scene):
 
 
 class Simulation:
-    """scene: Scene, built-in name or TOML path; overrides: Scene fields to replace."""
+    """scene: Scene, built-in name or TOML path; overrides: Scene fields to replace;
+    loaded_anatomy: an Anatomy already in memory (instead of loading the scene's)."""
 
-    def __init__(self, scene="default", anatomy=None, **overrides):
+    def __init__(self, scene="default", loaded_anatomy=None, **overrides):
         scene = resolve_scene(scene)
         self.scene = scene.with_overrides(**overrides) if overrides else scene
         sc = self.scene
-        self.anatomy = anatomy or load_anatomy(sc.anatomy, sc.level, sc.half)
+        self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half)
         props = MuscleProperties(force_scale={m: sc.force_scale.get(m, 1.0)
-                                              for m in sc.force_scale})
+                                              for m in MUSCLE_NAMES})
         self.face = FaceModel(self.anatomy, MooneyRivlin(), muscles=sc.driven,
                               stiffening=sc.stiffening, properties=props,
                               formulation=sc.formulation, linear_solver=sc.linear_solver)
@@ -113,6 +115,12 @@ class Simulation:
         out["substeps"] = self.last.substeps
         out["cutbacks"] = self.last.cutbacks
         return out
+
+    def release(self):
+        """Free the linear solver's native memory (the simulation stays usable)."""
+        release = getattr(self.face.model.linear_solver, "release", None)
+        if release:
+            release()
 
     def get_state(self):
         """Everything needed to resume: copies of arrays, plain floats."""

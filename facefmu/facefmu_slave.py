@@ -1,0 +1,200 @@
+"""FaceFMU: the FMI 2.0 co-simulation slave (pythonfmu). No physics here: it maps FMU
+variables to solver.simulation.Simulation.
+
+What a master sees:
+* doStep with a bad input (an activation that is NaN, inf or outside [0, 1]; a step size
+  that is not > 0; a current time that is not the FMU's time) returns fmi2Discard, with an
+  fmi2Discard log message naming the variable and the value; the state stays at the last
+  good point, and the next valid doStep works.
+* doStep whose solver cannot converge after every cutback: the same (fmi2Discard), logged
+  with the solver's reason.
+* A parameter that cannot be used (unknown scene, missing anatomy folder, bad level) is
+  logged as an error at exitInitializationMode, which then fails with fmi2Fatal (pythonfmu
+  turns exceptions into fmi2Fatal); setting a parameter after initialization is logged as
+  a warning and ignored.
+Outputs change only in doStep (no direct feedthrough).
+"""
+
+import io
+import math
+
+import numpy as np
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
+from pythonfmu.enums import Fmi2Status
+from pythonfmu.default_experiment import DefaultExperiment
+
+from solver.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from facefmu.model_description import extend_model_description
+
+OUTPUT_DESCRIPTIONS = {
+    "lip_aperture": "gap between upper and lower lip in the mid-sagittal plane (z distance "
+                    "of the lip edges), 0 when they touch",
+    "lip_protrusion": "forward (+y) displacement of the lips from rest: mean of the upper "
+                      "and lower lip front points",
+    "lip_width": "distance between the mouth corners",
+    "upper_lip_protrusion": "forward displacement of the upper lip's front point from rest",
+    "lower_lip_protrusion": "forward displacement of the lower lip's front point from rest",
+}
+PARAMETERS = ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep")
+
+
+class FaceFMU(Fmi2Slave):
+    author = "FaceFMU developers"
+    description = ("Finite-element face (Nazari et al. orofacial model): ten muscle "
+                   "activations in, lip aperture and protrusion out")
+    version = "0.1.0"
+    license = "BSD-3-Clause"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=0.3, step_size=0.005)
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.anatomy, self.level, self.scene = "generic", "coarse", "default"
+        self.half_face, self.tolerance, self.max_substep = True, 1e-3, 5e-3
+        for m in MUSCLE_NAMES:
+            setattr(self, m, 0.0)
+            self.register_variable(Real(m, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous,
+                                        description=f"activation of {MUSCLE_FULL_NAMES[m]}"))
+        for name, text in OUTPUT_DESCRIPTIONS.items():
+            setattr(self, name, 0.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.output,
+                                        variability=Fmi2Variability.continuous,
+                                        description=text))
+        self.newton_iterations, self.substeps = 0, 0
+        self.register_variable(Integer("newton_iterations", causality=Fmi2Causality.output,
+                                       variability=Fmi2Variability.discrete,
+                                       description="Newton iterations in the last doStep"))
+        self.register_variable(Integer("substeps", causality=Fmi2Causality.output,
+                                       variability=Fmi2Variability.discrete,
+                                       description="accepted substeps in the last doStep"))
+        fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
+        self.register_variable(String("anatomy", description="'generic' or the path of an "
+                                      "ANSYS face folder", **fixed))
+        self.register_variable(String("level", description="generic face resolution: coarse, "
+                                      "medium, paper or fine", **fixed))
+        self.register_variable(String("scene", description="a built-in scene name or the "
+                                      "path of a scene TOML file", **fixed))
+        self.register_variable(Boolean("half_face", description="simulate x <= 0 with "
+                                       "u_x = 0 on the mid-sagittal plane", **fixed))
+        self.register_variable(Real("tolerance", description="local error tolerance of a "
+                                    "substep", **fixed))
+        self.register_variable(Real("max_substep", description="largest substep", **fixed))
+        self.sim = None
+        self.time = 0.0
+        self._used = None
+
+    def to_xml(self, model_options=dict()):
+        return extend_model_description(super().to_xml(model_options))
+
+    # -- life cycle ----------------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time, tolerance):
+        self.time = float(start_time or 0.0)
+
+    def exit_initialization_mode(self):
+        from solver.simulation import Simulation
+        self._used = {p: getattr(self, p) for p in PARAMETERS}
+        try:
+            self.sim = Simulation(self.scene, **self._overrides())
+        except Exception as exc:
+            self.log(f"cannot build the model: {exc}", Fmi2Status.error)
+            raise
+        self.sim.t = self.time
+        self._publish()
+
+    def terminate(self):
+        if self.sim is not None:
+            self.sim.release()
+
+    def _overrides(self):
+        return {"anatomy": str(self.anatomy), "level": str(self.level),
+                "half": bool(self.half_face), "substep_tol": float(self.tolerance),
+                "max_substep": float(self.max_substep)}
+
+    # -- stepping ------------------------------------------------------------------------
+    def _refuse(self, message):
+        self.log(message, Fmi2Status.discard)
+        return False
+
+    def _check_inputs(self, current_time, step_size):
+        if not (isinstance(step_size, (int, float)) and math.isfinite(step_size)
+                and step_size > 0):
+            return f"communication step size {step_size!r} must be > 0"
+        if abs(current_time - self.time) > 1e-9 * max(1.0, abs(self.time)):
+            return (f"doStep starts at t = {current_time!r} s but the FMU is at "
+                    f"t = {self.time!r} s")
+        for m in MUSCLE_NAMES:
+            v = getattr(self, m)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
+                return f"input {m} = {v!r} is outside [0, 1]"
+        return None
+
+    def do_step(self, current_time, step_size):
+        problem = self._check_inputs(current_time, step_size)
+        if problem:
+            return self._refuse(f"step refused: {problem}; the state stays at t = {self.time} s")
+        for p in PARAMETERS:
+            if getattr(self, p) != self._used[p]:
+                self.log(f"parameter {p} changed to {getattr(self, p)!r} after "
+                         f"initialization: ignored (still {self._used[p]!r})", Fmi2Status.warning)
+                setattr(self, p, self._used[p])
+        values = {m: float(getattr(self, m)) for m in self.sim.face.muscles}
+        idle = [m for m in MUSCLE_NAMES if m not in self.sim.face.muscles and getattr(self, m)]
+        if idle:
+            self.log(f"inputs {', '.join(idle)} drive muscles that the scene "
+                     f"'{self.scene}' does not build: ignored", Fmi2Status.warning)
+        self.sim.set_activations(values)
+        stats = self.sim.step(self.time + step_size)
+        if not stats.converged:
+            return self._refuse(f"step from t = {self.time} s refused: the solver did not "
+                                f"converge ({stats.reason}); the state stays at t = {self.time} s")
+        self.time = self.sim.t
+        self._publish()
+        return True
+
+    def _publish(self):
+        out = self.sim.outputs()
+        for name in OUTPUT_DESCRIPTIONS:
+            setattr(self, name, out[name])
+        self.newton_iterations = int(out["newton_iterations"])
+        self.substeps = int(out["substeps"])
+
+    # -- state ---------------------------------------------------------------------------
+    def _get_fmu_state(self):
+        state = {name: getattr(self, name) for name in
+                 list(MUSCLE_NAMES) + list(OUTPUT_DESCRIPTIONS) + ["newton_iterations",
+                                                                  "substeps", "time"]}
+        if self.sim is not None:
+            state["sim"] = self.sim.get_state()
+        return state
+
+    def _set_fmu_state(self, state):
+        for name, value in state.items():
+            if name != "sim":
+                setattr(self, name, value)
+        if "sim" in state and self.sim is not None:
+            self.sim.set_state(state["sim"])
+            self.sim.last.newton_iterations = int(state["newton_iterations"])
+            self.sim.last.substeps = int(state["substeps"])
+
+    @staticmethod
+    def _fmu_state_to_bytes(state):
+        flat = {k: np.asarray(v) for k, v in state.items() if k != "sim"}
+        flat.update({f"sim.{k}": np.asarray(v) for k, v in state.get("sim", {}).items()})
+        buf = io.BytesIO()
+        np.savez(buf, **flat)
+        return buf.getvalue()
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        with np.load(io.BytesIO(bytes(data)), allow_pickle=False) as z:
+            state, sim = {}, {}
+            for k in z.files:
+                v = z[k]
+                v = v.item() if v.ndim == 0 else v
+                if k.startswith("sim."):
+                    sim[k[4:]] = v
+                else:
+                    state[k] = v
+        if sim:
+            state["sim"] = sim
+        return state
