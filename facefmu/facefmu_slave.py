@@ -106,9 +106,15 @@ class FaceFMU(Fmi2Slave):
             self.sim.release()
 
     def _overrides(self):
-        return {"anatomy": str(self.anatomy), "level": str(self.level),
-                "half": bool(self.half_face), "substep_tol": float(self.tolerance),
-                "max_substep": float(self.max_substep)}
+        out = {"anatomy": str(self.anatomy), "level": str(self.level),
+               "half": bool(self.half_face), "substep_tol": float(self.tolerance),
+               "max_substep": float(self.max_substep)}
+        from solver.simulation import resolve_scene
+        if resolve_scene(self.scene).linear_solver == "auto":
+            # MKL PARDISO loaded inside an FMU made fmpy's process abort at exit (heap
+            # corruption found by mkl_core_fini); a scene can still ask for "pardiso"
+            out["linear_solver"] = "superlu"
+        return out
 
     # -- stepping ------------------------------------------------------------------------
     def _refuse(self, message):

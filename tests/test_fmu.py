@@ -1,0 +1,89 @@
+"""The built FMU through fmpy: validation, simulate_fmu, stepwise, rollback, refusals.
+
+CI builds the FMU from scratch (session fixture) and tests the built file. Each fmpy run
+goes in its own process: pythonfmu loads every FMU into one interpreter, and a solver
+package already imported by the test process would win over the FMU's own copy.
+"""
+
+import json
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = Path(__file__).parent / "fmu_scripts"
+
+
+@pytest.fixture(scope="session")
+def fmu(tmp_path_factory):
+    dest = tmp_path_factory.mktemp("fmu")
+    run = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)],
+                         capture_output=True, text=True, cwd=tmp_path_factory.getbasetemp())
+    assert run.returncode == 0, run.stderr
+    path = dest / "FaceFMU.fmu"
+    assert path.is_file()
+    return path
+
+
+def _run(script, fmu, tmp_path, *args, timeout=600):
+    out = tmp_path / "out.json"
+    run = subprocess.run([sys.executable, str(SCRIPTS / script), str(fmu), str(out), *args],
+                         capture_output=True, text=True, timeout=timeout, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]
+    return json.loads(out.read_text()), run.stdout
+
+
+def test_model_description_passes_fmpy_validate_and_has_units(fmu):
+    from fmpy.validation import validate_fmu
+    assert validate_fmu(str(fmu)) == []
+    root = ET.fromstring(zipfile.ZipFile(fmu).read("modelDescription.xml"))
+    assert {u.get("name") for u in root.find("UnitDefinitions")} == {"mm", "s", "1"}
+    assert root.find("CoSimulation").get("needsExecutionTool") == "false"
+    assert root.find("CoSimulation").get("canGetAndSetFMUstate") == "true"
+    assert root.find("DefaultExperiment") is not None
+    variables = {v.get("name"): v for v in root.find("ModelVariables")}
+    oop = variables["OOP"]
+    assert oop.get("causality") == "input" and "orbicularis" in oop.get("description")
+    assert (oop[0].get("unit"), oop[0].get("min"), oop[0].get("max"), oop[0].get("start")) == \
+        ("1", "0", "1", "0")
+    assert variables["lip_aperture"][0].get("unit") == "mm"
+    for p in ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep"):
+        assert variables[p].get("causality") == "parameter", p
+    outputs = root.find("ModelStructure").find("Outputs")
+    assert len(outputs) == 7 and all(u.get("dependencies") == "" for u in outputs)
+
+
+@pytest.mark.skipif(shutil.which("fmutool") is None, reason="fmu-manipulation-toolbox absent")
+def test_fmutool_check(fmu):
+    run = subprocess.run(["fmutool", "-input", str(fmu), "-check"], capture_output=True,
+                         text=True, timeout=120)
+    text = run.stdout + run.stderr
+    assert run.returncode == 0 and "compliant" in text and "ERROR" not in text, text
+
+
+def test_simulate_fmu_with_input_signals(fmu, tmp_path):
+    res, _ = _run("simulate.py", fmu, tmp_path)
+    assert res["time"][0] == 0.0 and abs(res["time"][-1] - 0.1) < 1e-9
+    width, protrusion = res["lip_width"], res["lip_protrusion"]
+    assert protrusion[0] == 0.0 and abs(protrusion[5]) > 0.05      # OOP moved the lips
+    assert width[5] < width[0]                                     # OOP narrows the mouth
+    assert width[-1] > width[5]                                    # then RIS widens it
+    assert all(n > 0 for n in res["newton_iterations"][1:])
+
+
+def test_stepwise_rollback_refusals_and_two_instances(fmu, tmp_path):
+    res, stdout = _run("stepwise.py", fmu, tmp_path)
+    first, second, third = res["rollback"]
+    assert first == second == third                     # identical after rollback
+    assert first["lip_protrusion"] != res["after_3"]["lip_protrusion"]
+    assert [r[1] for r in res["refused"]] == [2] * 6      # each bad step: fmi2Discard
+    for needle in ("OOP = nan", "OOP = 1.5", "RIS = inf", "step size -0.01",
+                   "step size 0.0", "starts at t = 0.53"):
+        assert needle in stdout, needle
+    assert res["after_refusals"]["substeps"] > 0         # the next valid step works
+    assert res["second_instance"]["lip_protrusion"] != 0.0
