@@ -100,3 +100,13 @@ def test_two_fmu_cosimulation_with_the_motor_control_model(fmu, tmp_path):
     # the controller's activations rise with its 30 ms time constant and reach the face
     assert 0 < rows[0]["LLSAN"] < rows[-1]["LLSAN"] < 1
     assert rows[-1]["lip_aperture"] > rows[0]["lip_aperture"]        # /a/ opens the lips
+
+
+def test_a_step_the_solver_cannot_take_is_refused_and_the_state_kept(fmu, tmp_path):
+    scene = tmp_path / "too_strong.toml"
+    scene.write_text('[muscles]\ndriven = ["OOP"]\nforce_scale = { OOP = 300.0 }\n'
+                     '[solver]\nmax_substep = 0.005\nmin_substep = 0.004\n')
+    res, stdout = _run("nonconvergence.py", fmu, tmp_path, str(scene))
+    assert res["status"] == 2 and res["unchanged"]
+    assert "did not converge" in stdout
+    assert res["after"][0] != 0.0                        # the next valid step moved the lips
