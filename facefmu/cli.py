@@ -3,6 +3,7 @@
     facefmu version
     facefmu anatomy SPEC [--level coarse|medium|paper|fine] [--half]
                          [--export FILE.vtu|FILE.xdmf] [--png FILE.png]
+    facefmu run SCENE [--out DIR] [--anatomy SPEC] [--level L] [--full] [--vtu]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
 print one line to stderr naming the culprit and exit with status 2. A subcommand is an
@@ -15,6 +16,8 @@ import sys
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.anatomy.load import LEVELS, load_anatomy
 from solver.errors import FaceFMUError
+
+from . import run_scene
 
 EXIT_USAGE = 2
 
@@ -125,6 +128,8 @@ COMMANDS = {
     "version": ("print the version", _version_arguments, _version),
     "anatomy": ("summarise a face anatomy; export it or draw it", _anatomy_arguments,
                 _anatomy),
+    "run": ("run a scene standalone: CSV, PNG and optional VTU frames",
+            run_scene.add_arguments, run_scene.run),
 }
 
 

@@ -27,6 +27,9 @@ recorded outputs and, for standalone runs, activation schedules.
     teeth_contact = false
     gravity = "none"                # "none" | "upright" | "supine"
 
+    [gravity]
+    g = 9.81                        # m/s^2
+
     [damping]                       # Rayleigh C = alpha M + beta K0
     alpha = 40.0                    # 1/s
     beta = 0.03                     # s
@@ -55,6 +58,8 @@ recorded outputs and, for standalone runs, activation schedules.
     # step: time = 0.05, value = 1.0        pwl: times = [...], values = [...]
 
 Gravity: 'upright' pulls along -z (head upright), 'supine' along -y (lying on the back).
+A run with gravity starts from the static equilibrium under gravity alone; the lip outputs
+stay measured from the mesh as given.
 """
 
 import math
@@ -115,6 +120,7 @@ class Scene:
     lip_contact: bool = False
     teeth_contact: bool = False
     gravity: str = "none"
+    g: float = 9.81
     alpha: float = 40.0
     beta: float = 0.03
     density: float = 1040.0
@@ -222,6 +228,7 @@ SECTIONS = {
                 "stiffening": ("stiffening", _bool), "lip_contact": ("lip_contact", _bool),
                 "teeth_contact": ("teeth_contact", _bool),
                 "gravity": ("gravity", _choice(tuple(GRAVITY)))},
+    "gravity": {"g": ("g", _number(0.0))},
     "damping": {"alpha": ("alpha", _number(0.0)), "beta": ("beta", _number(0.0)),
                 "density": ("density", _number(0.0))},
     "solver": {"formulation": ("formulation", _choice(("mean_dilatation", "full"))),

@@ -66,12 +66,17 @@ class Simulation:
         density = kg_per_m3(sc.density)
         if GRAVITY[sc.gravity] is not None:
             from .terms.gravity import Gravity
-            model.add_term(Gravity(self.anatomy.mesh, density, GRAVITY[sc.gravity]))
+            model.add_term(Gravity(self.anatomy.mesh, density, GRAVITY[sc.gravity],
+                                   g=sc.g * 1e3))
         self.contact = []
         if sc.lip_contact or sc.teeth_contact:
             self.contact = _contact_terms(self.anatomy, sc)
             for term in self.contact:
                 model.add_term(term)
+        if GRAVITY[sc.gravity] is not None:          # start from the rest state under gravity
+            res = self.face.solve_static()
+            if not res.converged:
+                raise RuntimeError(f"no equilibrium under gravity: {res.reason}")
         self.integrator = None
         if sc.analysis == "transient":
             self.integrator = Transient(model, density, sc.alpha, sc.beta, sc.inertia,
@@ -79,10 +84,6 @@ class Simulation:
                                         sc.min_substep, sc.hold)
         self.t = 0.0
         self.last = StepStats()
-        if GRAVITY[sc.gravity] is not None:          # start from the rest state under gravity
-            res = self.face.solve_static()
-            if not res.converged:
-                raise RuntimeError(f"no equilibrium under gravity: {res.reason}")
 
     @property
     def term_names(self):
@@ -115,6 +116,36 @@ class Simulation:
         out["substeps"] = self.last.substeps
         out["cutbacks"] = self.last.cutbacks
         return out
+
+    def run(self, progress=False, on_record=None):
+        """A standalone run of the scene's schedules: records (list of dicts) at every
+        output interval up to the scene's duration. on_record(sim, row) is called at each."""
+        sc = self.scene
+        times = np.arange(1, int(round(sc.duration / sc.interval)) + 1) * sc.interval
+        rows = [self._record()]
+        if on_record:
+            on_record(self, rows[0])
+        iterator = times
+        if progress:
+            from tqdm import tqdm
+            iterator = tqdm(times, desc=sc.name, unit="record")
+        for t in iterator:
+            self.set_activations(sc.activations(t))
+            stats = self.step(float(t))
+            if not stats.converged:
+                raise RuntimeError(f"scene {sc.name}: step to t = {t:.4g} s failed: "
+                                   f"{stats.reason}")
+            rows.append(self._record())
+            if on_record:
+                on_record(self, rows[-1])
+        return rows
+
+    def _record(self):
+        out = self.outputs()
+        row = {"time": self.t}
+        row.update({k: out[k] for k in self.scene.record if k in out})
+        row.update(self.face.activation.as_dict(self.face.activation.start))
+        return row
 
     def release(self):
         """Free the linear solver's native memory (the simulation stays usable)."""

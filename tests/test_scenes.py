@@ -1,0 +1,88 @@
+"""Scenes: validation errors, only the called-for terms, effects off = parameters zero."""
+
+import numpy as np
+import pytest
+
+from solver.anatomy.base import MUSCLE_NAMES
+from solver.scene import SceneError, load_scene, parse_scene
+from solver.simulation import Simulation, builtin_scenes, resolve_scene
+
+
+@pytest.mark.parametrize("name", builtin_scenes())
+def test_builtin_scenes_parse(name):
+    scene = resolve_scene(name)
+    assert scene.name == name and scene.duration > 0
+    assert set(scene.activations(scene.duration)) == set(scene.driven)
+
+
+def test_static_scene_builds_no_mass_or_damping_and_undriven_muscles_no_cables():
+    sim = Simulation("paper_ris")
+    assert sim.term_names == ["elasticity", "cables", "stiffening"]
+    assert sim.integrator is None
+    assert {MUSCLE_NAMES[m] for m in sim.face.cables.muscle} == {"RIS"}
+    assert set(sim.face.stiffening.regions) == {"RIS"}
+    sim.set_activations({"RIS": 0.3})
+    assert sim.step(1.0).converged
+    with pytest.raises(ValueError, match="OOP is not driven"):
+        sim.set_activations({"OOP": 0.5})
+
+
+def test_transient_scene_builds_what_it_asks_for():
+    sim = Simulation(parse_scene({"muscles": {"driven": ["OOP"]},
+                                  "effects": {"damping": False, "stiffening": False}}))
+    assert sim.term_names == ["elasticity", "cables", "inertia"]
+
+
+@pytest.mark.parametrize("text,key", [
+    ('[effects]\ninertia = "yes"\n', "effects.inertia"),
+    ('[effects]\nfriction = true\n', "effects.friction"),
+    ('[efects]\n', "efects"),
+    ('[scene]\nanalysis = "dynamic"\n', "scene.analysis"),
+    ('[anatomy]\nlevel = "ultra"\n', "anatomy.level"),
+    ('[muscles]\ndriven = ["OOP", "XYZ"]\n', "muscles.driven"),
+    ('[solver]\nmax_substep = -1.0\n', "solver.max_substep"),
+    ('[[schedule]]\nmuscle = "OOP"\nkind = "ramp"\nstart = 0.2\nend = 0.1\nto = 1.0\n',
+     "schedule.0"),
+    ('[[schedule]]\nmuscle = "OOP"\nkind = "step"\ntime = 0.1\nvalue = 2.0\n', "schedule.0"),
+    ('[[schedule]]\nmuscle = "OOP"\nkind = "step"\nvalue = 1.0\n', "schedule.0.time"),
+    ('[scene\n', ""),
+])
+def test_bad_scene_files_are_refused_naming_file_and_key(tmp_path, text, key):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(path) in str(info.value) and f"[{key}]" in str(info.value)
+
+
+def test_missing_scene_file_is_named(tmp_path):
+    with pytest.raises(SceneError, match="nowhere.toml"):
+        resolve_scene(str(tmp_path / "nowhere.toml"))
+
+
+def _short_run(**effects):
+    scene = parse_scene({"muscles": {"driven": ["OOP"]}, **effects,
+                         "scene": {"duration": 0.02},
+                         "outputs": {"interval": 0.01, "record": ["lip_protrusion"]},
+                         "schedule": [{"muscle": "OOP", "kind": "step", "time": 0.0,
+                                       "value": 0.8}]})
+    sim = Simulation(scene)
+    sim.run()
+    return sim.face.u.copy(), sim.term_names
+
+
+def test_damping_off_equals_zero_damping_parameters():
+    u_off, terms_off = _short_run(effects={"damping": False})
+    u_zero, terms_zero = _short_run(damping={"alpha": 0.0, "beta": 0.0})
+    assert "damping" not in terms_off and "damping" not in terms_zero
+    assert np.abs(u_off).max() > 1e-3
+    assert np.allclose(u_off, u_zero, rtol=0, atol=1e-12)
+
+
+def test_gravity_off_equals_zero_gravity():
+    u_off, terms_off = _short_run()
+    u_zero, terms_zero = _short_run(effects={"gravity": "upright"}, gravity={"g": 0.0})
+    u_on, _ = _short_run(effects={"gravity": "upright"})
+    assert "gravity" not in terms_off and "gravity" in terms_zero
+    assert np.allclose(u_off, u_zero, rtol=0, atol=1e-10)
+    assert np.abs(u_on - u_off).max() > 1e-3               # gravity itself does something
