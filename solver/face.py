@@ -19,6 +19,7 @@ from .materials import MooneyRivlin
 from .model import Model
 from .muscles import MuscleProperties
 from .terms.cables import Cables
+from .strain import log_principal_strains
 from .terms.stiffening import Stiffening, muscle_neighbourhoods
 
 LIP_OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
@@ -50,11 +51,28 @@ class FaceModel:
             self.cables = Cables(anatomy, self.muscles, self.properties, self.activation)
             self.model.add_term(self.cables)
             if stiffening:
-                regions = muscle_neighbourhoods(anatomy, self.muscles,
-                                                self.properties.stiffening_radius)
-                self.stiffening = Stiffening(mesh, self.model.elasticity.params, regions,
-                                             self.properties, self.activation)
+                self.stiffening = Stiffening(mesh, self.model.elasticity.params,
+                                             self.regions, self.properties, self.activation)
                 self.model.add_term(self.stiffening)
+
+    @property
+    def regions(self):
+        """muscle -> brick indices within its stiffening radius of its fibres (driven
+        muscles; computed once)."""
+        if not hasattr(self, "_regions"):
+            self._regions = muscle_neighbourhoods(self.anatomy, self.muscles,
+                                                  self.properties.stiffening_radius)
+        return self._regions
+
+    def region_strains(self, u=None):
+        """muscle -> (most compressive, most tensile) logarithmic principal strain over
+        the bricks of its region."""
+        u = self.model.u if u is None else u
+        out = {}
+        for m, bricks in self.regions.items():
+            eps = log_principal_strains(self.anatomy.mesh, u, bricks)
+            out[m] = (float(eps.min()), float(eps.max())) if len(bricks) else (0.0, 0.0)
+        return out
 
     @property
     def term_names(self):

@@ -45,8 +45,12 @@ recorded outputs and, for standalone runs, activation schedules.
     hold = "ramp"                   # activations within a step: "ramp" | "step"
 
     [outputs]
-    record = ["lip_aperture", "lip_protrusion", "lip_width"]
+    record = ["lip_aperture", "lip_protrusion", "lip_width"]   # see OUTPUTS
     interval = 0.005                # s, standalone runs
+
+"muscle_strains" records strain_min_<M> and strain_max_<M>: the most compressive and most
+tensile logarithmic principal strain over each driven muscle's region (its stiffening
+neighbourhood).
 
     [[schedule]]                    # standalone runs; activations are 0 where unset
     muscle = "OOP"
@@ -77,7 +81,7 @@ LEVELS = ("coarse", "medium", "paper", "fine")
 GRAVITY = {"none": None, "upright": (0.0, 0.0, -1.0), "supine": (0.0, -1.0, 0.0)}
 OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
            "lower_lip_protrusion", "contact_force", "newton_iterations", "substeps",
-           "cutbacks")
+           "cutbacks", "muscle_strains")
 SCHEDULE_KINDS = ("step", "ramp", "pwl")
 
 

@@ -115,6 +115,9 @@ class Simulation:
         out["newton_iterations"] = self.last.newton_iterations
         out["substeps"] = self.last.substeps
         out["cutbacks"] = self.last.cutbacks
+        if "muscle_strains" in self.scene.record:
+            for m, (lo, hi) in self.face.region_strains().items():
+                out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
         return out
 
     def run(self, progress=False, on_record=None):
@@ -143,7 +146,8 @@ class Simulation:
     def _record(self):
         out = self.outputs()
         row = {"time": self.t}
-        row.update({k: out[k] for k in self.scene.record if k in out})
+        row.update({k: v for k, v in out.items() if k in self.scene.record
+                    or (k.startswith("strain_") and "muscle_strains" in self.scene.record)})
         row.update(self.face.activation.as_dict(self.face.activation.start))
         return row
 

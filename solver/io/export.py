@@ -36,9 +36,10 @@ import meshio
 import numpy as np
 
 from ..anatomy.base import MUSCLE_NAMES
-from ..element import NODE_XI, shape_functions, shape_gradients
+from ..element import NODE_XI, shape_functions
 from ..embedding import locate
 from ..errors import ParameterError
+from ..strain import green_lagrange_strain, principal_strains
 
 FORMATS = {".vtu": "vtu", ".xdmf": "xdmf"}
 SIDES = ("left", "right", "mid")
@@ -162,22 +163,6 @@ def vtk_cells(bricks):
 
 
 # ----------------------------------------------------------------------------- strain
-
-def green_lagrange_strain(mesh, u):
-    """(m, 3, 3) Green-Lagrange strain E = (F^T F - I) / 2 at each brick's centre, for
-    displacements u (n, 3)."""
-    dn_dxi = shape_gradients(np.zeros(3))                           # (8, 3)
-    xe, ue = mesh.nodes[mesh.bricks], np.asarray(u, dtype=np.float64)[mesh.bricks]
-    jac = np.einsum("ak,maj->mjk", dn_dxi, xe)                      # dX_j / dxi_k
-    dn_dx = np.einsum("ak,mkj->maj", dn_dxi, np.linalg.inv(jac))     # (m, 8, 3)
-    h = np.einsum("mai,maj->mij", ue, dn_dx)                        # du_i / dX_j
-    return 0.5 * (h + h.transpose(0, 2, 1) + np.einsum("mki,mkj->mij", h, h))
-
-
-def principal_strains(strain):
-    """(m, 3) eigenvalues of symmetric strains (m, 3, 3), largest first."""
-    return np.linalg.eigvalsh(strain)[:, ::-1]
-
 
 # ---------------------------------------------------------------------------- muscles
 
