@@ -4,6 +4,8 @@ Convergence (all must hold at an iterate):
 
     ||r_f||_2      <= rtol * r_ref + atol        force criterion, N
     ||du||_inf     <= utol                       displacement criterion, mm
+                                                 (vacuous at the start point: a state
+                                                 already in equilibrium takes no step)
 
 where r_f is the residual on the free DOFs and r_ref = max(||f_int||_2 over all DOFs,
 ||f_ext||_2, 1e-12 N) at the current iterate (the load scale, reactions included).
@@ -139,8 +141,8 @@ def newton(system, u0, targets, lin, opts):
             return None, None, report
         dup = targets - u[prescribed]
         ref = max(float(np.linalg.norm(r[prescribed])), system.external_scale(), 1e-12)
-        if it > 0 and rn <= opts.rtol * ref + opts.atol and step_size <= opts.utol \
-                and not np.any(dup):
+        if rn <= opts.rtol * ref + opts.atol and not np.any(dup) \
+                and (it == 0 or step_size <= opts.utol):     # at it = 0: nothing to move
             report.converged = True
             return u, r, report
         if it == opts.max_iter:

@@ -91,6 +91,7 @@ class Transient:
         self.t = 0.0
         self.v = np.zeros_like(model.u)
         self.h = min(max_substep, 1e-3)
+        self.dissipated = 0.0          # mJ: sum over substeps of h v^T C v (never negative)
 
     def energy(self):
         """(kinetic, stored) energy in mJ at the current state (stored: all potentials
@@ -130,7 +131,7 @@ class Transient:
         p_target = np.array([model._target[d] for d in pres])
         u, v = model.u.ravel().copy(), self.v.ravel().copy()
         p_start = u[pres].copy()
-        u0, v0 = u.copy(), v.copy()
+        u0, v0, d0 = u.copy(), v.copy(), self.dissipated
         stats = StepStats()
         t, run = t0, 0
         h = self.fixed_step or min(self.h, self.max_substep)
@@ -152,6 +153,7 @@ class Transient:
                     stats.reason = f"at t = {t_new:.6g} s: {rep.reason}"
                     model.u = u0.reshape(-1, 3)
                     self.v = v0.reshape(-1, 3)
+                    self.dissipated = d0
                     sysm.lam = 0.0
                     return stats
                 h /= 4
@@ -163,6 +165,8 @@ class Transient:
                 stats.rejected += 1
                 h = max(h * max(0.3, 0.9 * np.sqrt(self.tol / err)), self.min_substep)
                 continue
+            if self.damping is not None:
+                self.dissipated += h * float(v_new.ravel() @ self.damping.force(v_new))
             u, v, t = u_new, v_new, t_new
             sysm.commit(u)
             stats.substeps += 1
