@@ -43,7 +43,8 @@ def main(argv=None):
           f"assembly {total:.2f} s")
     table = []
     for effect in scene.effects:
-        row = {"effect": effect, "share_of_assembly": seconds.get(effect, 0.0) / total}
+        spent = sum(v for k, v in seconds.items() if k == effect or k.endswith(f"_{effect}"))
+        row = {"effect": effect, "share_of_assembly": spent / total}
         flag = SWITCHES.get(effect)
         if flag is not None:
             off = scene.with_overrides(**{flag: "none" if flag == "gravity" else False})

@@ -20,9 +20,14 @@ face, I - t t on an edge and I at a vertex.
 
 Side. The signed gap is g = -|d| when (x - c) . N_f <= 0 for the pseudo-normal N_f of the
 closest feature (face normal, mean of the two face normals of an edge, angle-weighted
-normal of a vertex), +|d| otherwise; g <= 0 is active (a touching node, g = 0, carries
-stiffness but no force). A closest point on a free boundary edge or vertex of an open
-surface has no side: such a node is out of contact.
+normal of a vertex), +|d| otherwise; g <= 0 is active. A closest point on a free boundary
+edge or vertex of an open surface has no side: such a node is out of contact.
+
+Penalty. With the penetration p = -g = |d|, psi(p) is k F (pure penalty; a touching node,
+p = 0, carries the stiffness k hess F but no force) or, with an onset length e > 0, a
+cubic onset k p^3 / (6 e) joined (C2) to k (F - e p / 2 + e^2 / 6): then
+grad psi = a grad F, hess psi = a hess F + b grad F grad F^T with a = psi' / p,
+b = (psi'' - psi' / p) / p^2, both bounded (no 1/|d| on edges and vertices).
 """
 
 import numpy as np
@@ -32,17 +37,29 @@ FACE, EDGE, VERTEX = 0, 1, 4
 
 
 @njit(cache=True)
-def closest_point(p, a, b, c, w):
-    """Closest point of triangle (a, b, c) to p (all (3,)): fills w (3,), returns the region
-    (0 face, 1 + j edge j, 4 + j vertex j)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab @ ap, ac @ ap
-    w[:] = 0.0
+def _dot(x, i, y, j, z, k):
+    """(x[i] - z[k]) . (y[j] - z[k]) over rows of (., 3) arrays, in scalars."""
+    return ((x[i, 0] - z[k, 0]) * (y[j, 0] - z[k, 0]) + (x[i, 1] - z[k, 1]) * (y[j, 1] - z[k, 1])
+            + (x[i, 2] - z[k, 2]) * (y[j, 2] - z[k, 2]))
+
+
+@njit(cache=True)
+def closest_point(p, xv, ia, ib, ic, w):
+    """Closest point of the triangle (xv[ia], xv[ib], xv[ic]) to the point p (3,): fills
+    its barycentric weights w (3,), returns the region (0 face, 1 + j edge j, 4 + j
+    vertex j). Ericson, Real-Time Collision Detection, 5.1.5."""
+    abx, aby, abz = xv[ib, 0] - xv[ia, 0], xv[ib, 1] - xv[ia, 1], xv[ib, 2] - xv[ia, 2]
+    acx, acy, acz = xv[ic, 0] - xv[ia, 0], xv[ic, 1] - xv[ia, 1], xv[ic, 2] - xv[ia, 2]
+    apx, apy, apz = p[0] - xv[ia, 0], p[1] - xv[ia, 1], p[2] - xv[ia, 2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    w[0] = w[1] = w[2] = 0.0
     if d1 <= 0.0 and d2 <= 0.0:
         w[0] = 1.0
         return 4
-    bp = p - b
-    d3, d4 = ab @ bp, ac @ bp
+    bpx, bpy, bpz = p[0] - xv[ib, 0], p[1] - xv[ib, 1], p[2] - xv[ib, 2]
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
     if d3 >= 0.0 and d4 <= d3:
         w[1] = 1.0
         return 5
@@ -51,8 +68,9 @@ def closest_point(p, a, b, c, w):
         v = d1 / (d1 - d3)
         w[0], w[1] = 1.0 - v, v
         return 1
-    cp = p - c
-    d5, d6 = ab @ cp, ac @ cp
+    cpx, cpy, cpz = p[0] - xv[ic, 0], p[1] - xv[ic, 1], p[2] - xv[ic, 2]
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
         w[2] = 1.0
         return 6
@@ -73,82 +91,105 @@ def closest_point(p, a, b, c, w):
 
 
 @njit(cache=True)
-def surface_normals(x, tris, nbr, fn, en, vn):
+def surface_normals(x, tris, nbr, verts, fn, en, vn):
     """Unit face normals fn (t, 3), edge pseudo-normals en (t, 3, 3) (edge j of triangle t;
-    the face normal on a free edge) and angle-weighted vertex normals vn (p, 3) of the
-    triangles tris (t, 3) over points x (p, 3); nbr (t, 3) is the triangle across edge j
-    or -1."""
-    vn[:] = 0.0
+    the face normal on a free edge) and angle-weighted vertex normals vn (p, 3) (rows
+    verts (v,), the surface's vertices) of the triangles tris (t, 3) over points x (p, 3);
+    nbr (t, 3) is the triangle across edge j or -1."""
+    for v in verts:
+        vn[v, 0] = vn[v, 1] = vn[v, 2] = 0.0
     for t in range(tris.shape[0]):
-        a, b, c = x[tris[t, 0]], x[tris[t, 1]], x[tris[t, 2]]
-        n = np.cross(b - a, c - a)
-        fn[t] = n / np.sqrt(n @ n)
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        s = np.sqrt(nx * nx + ny * ny + nz * nz)
+        fn[t, 0], fn[t, 1], fn[t, 2] = nx / s, ny / s, nz / s
         for j in range(3):
-            p, q, r = x[tris[t, j]], x[tris[t, (j + 1) % 3]], x[tris[t, (j + 2) % 3]]
-            e1, e2 = q - p, r - p
-            cosang = (e1 @ e2) / np.sqrt((e1 @ e1) * (e2 @ e2))
-            vn[tris[t, j]] += np.arccos(min(1.0, max(-1.0, cosang))) * fn[t]
+            p, q, r = tris[t, j], tris[t, (j + 1) % 3], tris[t, (j + 2) % 3]
+            cosang = _dot(x, q, x, r, x, p) / np.sqrt(_dot(x, q, x, q, x, p)
+                                                      * _dot(x, r, x, r, x, p))
+            angle = np.arccos(min(1.0, max(-1.0, cosang)))
+            for i in range(3):
+                vn[p, i] += angle * fn[t, i]
     for t in range(tris.shape[0]):
         for j in range(3):
-            m = fn[t].copy()
-            if nbr[t, j] >= 0:
-                m += fn[nbr[t, j]]
-            s = np.sqrt(m @ m)
-            en[t, j] = m / s if s > 0.0 else fn[t]
-    for v in range(vn.shape[0]):
-        s = np.sqrt(vn[v] @ vn[v])
+            o = nbr[t, j]
+            mx, my, mz = fn[t, 0], fn[t, 1], fn[t, 2]
+            if o >= 0:
+                mx, my, mz = mx + fn[o, 0], my + fn[o, 1], mz + fn[o, 2]
+            s = np.sqrt(mx * mx + my * my + mz * mz)
+            if s > 0.0:
+                en[t, j, 0], en[t, j, 1], en[t, j, 2] = mx / s, my / s, mz / s
+            else:
+                en[t, j, 0], en[t, j, 1], en[t, j, 2] = fn[t, 0], fn[t, 1], fn[t, 2]
+    for v in verts:
+        s = np.sqrt(vn[v, 0] ** 2 + vn[v, 1] ** 2 + vn[v, 2] ** 2)
         if s > 0.0:
-            vn[v] /= s
+            vn[v, 0], vn[v, 1], vn[v, 2] = vn[v, 0] / s, vn[v, 1] / s, vn[v, 2] / s
 
 
 @njit(cache=True)
-def nearest(p, xv, tris, cand, w):
+def nearest(p, xv, tris, cand, w, wt):
     """Nearest of the triangles cand (k,) to p (3,): (position in cand or -1, region,
-    squared distance); w (3,) gets its barycentric weights."""
+    squared distance); w (3,) gets its barycentric weights (wt (3,): work space)."""
     best, region, d2best = -1, 0, np.inf
-    wt = np.empty(3)
     for j in range(cand.shape[0]):
         t = cand[j]
-        r = closest_point(p, xv[tris[t, 0]], xv[tris[t, 1]], xv[tris[t, 2]], wt)
-        c = wt[0] * xv[tris[t, 0]] + wt[1] * xv[tris[t, 1]] + wt[2] * xv[tris[t, 2]]
-        d = p - c
-        d2 = d @ d
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        r = closest_point(p, xv, a, b, c, wt)
+        d2 = 0.0
+        for i in range(3):
+            d = p[i] - wt[0] * xv[a, i] - wt[1] * xv[b, i] - wt[2] * xv[c, i]
+            d2 += d * d
         if d2 < d2best:
             best, region, d2best = j, r, d2
-            w[:] = wt
+            w[0], w[1], w[2] = wt[0], wt[1], wt[2]
     return best, region, d2best
 
 
 @njit(cache=True)
-def side(p, c, t, region, tris, fn, en, vn, free_edge, free_vertex):
-    """(p - c) . pseudo-normal of the feature region of triangle t; NaN on a free
-    boundary feature."""
+def locate(p, xv, tris, cand, fn, en, vn, free_edge, free_vertex, w, wt, xm):
+    """Nearest of the triangles cand (k,) to p (3,) and the side of p:
+    (position in cand or -1, region, distance, side), side = (p - c) . the pseudo-normal
+    of the closest feature (NaN on a free boundary feature); fills w (3,) its weights and
+    xm (3, 3) its vertices (wt (3,): work space)."""
+    j, region, d2 = nearest(p, xv, tris, cand, w, wt)
+    if j < 0:
+        return j, region, np.inf, np.nan
+    t = cand[j]
+    for a in range(3):
+        for i in range(3):
+            xm[a, i] = xv[tris[t, a], i]
     if region == FACE:
         m = fn[t]
     elif region < VERTEX:
         if free_edge[t, region - EDGE]:
-            return np.nan
+            return j, region, np.sqrt(d2), np.nan
         m = en[t, region - EDGE]
     else:
         v = tris[t, region - VERTEX]
         if free_vertex[v]:
-            return np.nan
+            return j, region, np.sqrt(d2), np.nan
         m = vn[v]
-    return (p - c) @ m
+    sd = 0.0
+    for i in range(3):
+        sd += (p[i] - w[0] * xm[0, i] - w[1] * xm[1, i] - w[2] * xm[2, i]) * m[i]
+    return j, region, np.sqrt(d2), sd
 
 
 @njit(cache=True)
-def pair_derivatives(x, xm, region, w, k, nloc, need_k, fe, ke):
-    """Energy k F of the pair (slave x (3,), master triangle xm (3, 3)) in a region with
-    weights w (3,); fe (3 nloc,), ke (3 nloc, 3 nloc) get its gradient and Hessian over
-    the slave (nloc = 1, rigid master) or the slave and the triangle (nloc = 4)."""
+def distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke):
+    """F = |d|^2 / 2 of the pair (slave x (3,), master triangle xm (3, 3)) in a region with
+    weights w (3,); fe (3 nloc,), ke (3 nloc, 3 nloc) get its gradient and Hessian over the
+    slave (nloc = 1, rigid master) or the slave and the triangle (nloc = 4). Returns F."""
     d = x - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
     nw = np.array([1.0, -w[0], -w[1], -w[2]])
     for a in range(nloc):
         for i in range(3):
-            fe[3 * a + i] = k * nw[a] * d[i]
+            fe[3 * a + i] = nw[a] * d[i]
     if not need_k:
-        return 0.5 * k * (d @ d)
+        return 0.5 * (d @ d)
     # tangents tau_i = sum_a C[i, a] X_a of the feature (over X = slave, x_1, x_2, x_3)
     C = np.zeros((2, 4))
     if region == FACE:
@@ -169,7 +210,8 @@ def pair_derivatives(x, xm, region, w, k, nloc, need_k, fe, ke):
     if nt == 2:
         m00, m01, m11 = tau[0] @ tau[0], tau[0] @ tau[1], tau[1] @ tau[1]
         det = m00 * m11 - m01 * m01
-        Minv[0, 0], Minv[0, 1], Minv[1, 0], Minv[1, 1] = m11 / det, -m01 / det, -m01 / det, m00 / det
+        Minv[0, 0], Minv[1, 1] = m11 / det, m00 / det
+        Minv[0, 1] = Minv[1, 0] = -m01 / det
     elif nt == 1:
         Minv[0, 0] = 1.0 / (tau[0] @ tau[0])
     n = 3 * nloc
@@ -184,77 +226,103 @@ def pair_derivatives(x, xm, region, w, k, nloc, need_k, fe, ke):
             for i in range(nt):
                 for j in range(nt):
                     v -= B[i, r] * Minv[i, j] * B[j, s]
-            ke[r, s] = k * v
-    return 0.5 * k * (d @ d)
+            ke[r, s] = v
+    return 0.5 * (d @ d)
+
+
+@njit(cache=True)
+def penalty_law(p, k, onset):
+    """The penalty energy of a penetration p >= 0 (mm), stiffness k (N/mm), cubic onset
+    over onset (mm): psi = k p^3 / (6 onset) for p < onset, else
+    k (p^2 / 2 - onset p / 2 + onset^2 / 6). Returns (psi, psi', a, b), where
+    grad psi = a grad F and hess psi = a hess F + b grad F grad F^T for F = p^2 / 2
+    (onset = 0: psi = k F, a = k, b = 0)."""
+    if p >= onset:
+        a = k * (1.0 - 0.5 * onset / p) if p > 0.0 else k
+        b = 0.5 * k * onset / p ** 3 if onset > 0.0 else 0.0
+        return k * (0.5 * p * p - 0.5 * onset * p + onset * onset / 6.0), a * p, a, b
+    b = 0.5 * k / (onset * p) if p > 0.0 else 0.0
+    return k * p ** 3 / (6.0 * onset), 0.5 * k * p * p / onset, 0.5 * k * p / onset, b
+
+
+@njit(cache=True)
+def pair_penalty(x, xm, region, w, dist, k, onset, nloc, need_k, fe, ke):
+    """Penalty energy of a penetrating pair (see distance_derivatives, penalty_law): fills
+    fe, ke; returns (psi, the normal force psi' (N))."""
+    distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke)
+    psi, force, a, b = penalty_law(dist, k, onset)
+    if need_k:
+        for r in range(fe.shape[0]):
+            for q in range(fe.shape[0]):
+                ke[r, q] = a * ke[r, q] + b * fe[r] * fe[q]
+    for r in range(fe.shape[0]):
+        fe[r] *= a
+    return psi, force
 
 
 @njit(cache=True)
 def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, depth,
-                  need_k, fe, ke, gap, tri):
+                  onset, need_k, fe, ke, gap, force, tri):
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
     (zero where inactive), gap (s,) (signed; inf without a candidate or on a free
-    boundary) and tri (s,) (nearest triangle or -1). Active: g <= 0 and |g| <= depth.
-    Returns the energy."""
+    boundary), force (s,) (normal force, N) and tri (s,) (nearest triangle or -1).
+    Active: g <= 0 and |g| <= depth. Returns the energy."""
     energy = 0.0
-    w = np.empty(3)
-    xm = np.empty((3, 3))
+    w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
     for i in range(xs.shape[0]):
         fe[i] = 0.0
         if need_k:
             ke[i] = 0.0
-        gap[i], tri[i] = np.inf, -1
-        j, region, d2 = nearest(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], w)
+        gap[i], force[i], tri[i] = np.inf, 0.0, -1
+        j, region, dist, sd = locate(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], fn, en, vn,
+                                     free_edge, free_vertex, w, wt, xm)
         if j < 0:
             continue
-        t = cand[ptr[i] + j]
-        tri[i] = t
-        for a in range(3):
-            xm[a] = xv[tris[t, a]]
-        c = w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2]
-        sd = side(xs[i], c, t, region, tris, fn, en, vn, free_edge, free_vertex)
-        dist = np.sqrt(d2)
+        tri[i] = cand[ptr[i] + j]
         if not sd <= 0.0 or dist > depth:
             gap[i] = dist if not np.isnan(sd) else np.inf
             continue
         gap[i] = -dist
-        energy += pair_derivatives(xs[i], xm, region, w, k[i], 1, need_k, fe[i], ke[i])
+        psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, k[i], onset, 1, need_k,
+                                     fe[i], ke[i])
+        energy += psi
     return energy
 
 
 @njit(cache=True)
 def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, free_vertex,
-                    depth, need_k, fe, ke, gap, active):
+                    depth, onset, need_k, fe, ke, gap, force, active, kept):
     """Slave nodes slaves (s,) with stiffness k (s,) on deformable triangles tris (t, 3),
     current node positions x (n, 3); the candidate pairs of slave i are
-    ptr[i]:ptr[i + 1], with triangles pair_tri (p,). Fills fe (p, 12), ke (p, 12, 12)
-    (zero but for each slave's active pair), gap (s,) and active (s,) (the active pair
-    or -1). Active: g <= 0 and |g| <= depth. Returns the energy."""
+    ptr[i]:ptr[i + 1], with triangles pair_tri (p,). Keeps fe (p, 12), ke (p, 12, 12) zero
+    but for each slave's active pair: active (s,) (that pair or -1; fe nonzero there) and
+    kept (s,) (the pair whose ke is nonzero or -1) are read and updated. Fills gap (s,),
+    force (s,). Active: g <= 0 and |g| <= depth. Returns the energy."""
     energy = 0.0
-    w = np.empty(3)
-    xm = np.empty((3, 3))
+    w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
     for i in range(slaves.shape[0]):
-        for p in range(ptr[i], ptr[i + 1]):
-            fe[p] = 0.0
-            if need_k:
-                ke[p] = 0.0
-        gap[i], active[i] = np.inf, -1
+        if active[i] >= 0:
+            fe[active[i]] = 0.0
+        if need_k and kept[i] >= 0:
+            ke[kept[i]] = 0.0
+            kept[i] = -1
+        gap[i], force[i], active[i] = np.inf, 0.0, -1
         xs = x[slaves[i]]
-        j, region, d2 = nearest(xs, x, tris, pair_tri[ptr[i]:ptr[i + 1]], w)
+        j, region, dist, sd = locate(xs, x, tris, pair_tri[ptr[i]:ptr[i + 1]], fn, en, vn,
+                                     free_edge, free_vertex, w, wt, xm)
         if j < 0:
             continue
-        p = ptr[i] + j
-        t = pair_tri[p]
-        for a in range(3):
-            xm[a] = x[tris[t, a]]
-        c = w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2]
-        sd = side(xs, c, t, region, tris, fn, en, vn, free_edge, free_vertex)
-        dist = np.sqrt(d2)
         if not sd <= 0.0 or dist > depth:
             gap[i] = dist if not np.isnan(sd) else np.inf
             continue
+        p = ptr[i] + j
         gap[i], active[i] = -dist, p
-        energy += pair_derivatives(xs, xm, region, w, k[i], 4, need_k, fe[p], ke[p])
+        if need_k:
+            kept[i] = p
+        psi, force[i] = pair_penalty(xs, xm, region, w, dist, k[i], onset, 4, need_k,
+                                     fe[p], ke[p])
+        energy += psi
     return energy
 
 
@@ -263,7 +331,9 @@ def pair_distances(xs, xv, tris, pair_tri, d2):
     """d2 (p,): squared distance of each point xs (p, 3) to its triangle pair_tri (p,)."""
     w = np.empty(3)
     for p in range(xs.shape[0]):
-        t = pair_tri[p]
-        closest_point(xs[p], xv[tris[t, 0]], xv[tris[t, 1]], xv[tris[t, 2]], w)
-        d = xs[p] - (w[0] * xv[tris[t, 0]] + w[1] * xv[tris[t, 1]] + w[2] * xv[tris[t, 2]])
-        d2[p] = d @ d
+        a, b, c = tris[pair_tri[p], 0], tris[pair_tri[p], 1], tris[pair_tri[p], 2]
+        closest_point(xs[p], xv, a, b, c, w)
+        d2[p] = 0.0
+        for i in range(3):
+            d = xs[p, i] - w[0] * xv[a, i] - w[1] * xv[b, i] - w[2] * xv[c, i]
+            d2[p] += d * d

@@ -5,66 +5,82 @@ Both terms are node-on-surface: a slave node x meets a triangulated master surfa
 Gap. c is the closest point of the master surface to x (over a candidate set of
 triangles; on a face, an edge or a vertex of a triangle), d = x - c, and
 
-    g = -|d|  if (x - c) . N < 0,  else +|d|,
+    g = -|d|  if (x - c) . N <= 0,  else +|d|,
 
 with N the pseudo-normal of the closest feature (the face's normal; on an edge the mean of
 its two faces' normals; at a vertex the angle-weighted normal): the signed distance to the
-surface, negative inside. The outward normal is n = d / g where g != 0 (n = face normal on
-a face). An open sheet (the teeth) has free boundary edges: a node whose closest point lies
-on one (or on a free boundary vertex) has no side and is out of contact: there is no
-contact beyond the sheet's edge, a lip may wrap around the incisors.
+surface, negative inside. The outward normal is n = -d / |d| for g < 0 (the face normal
+on a face). An open sheet (the teeth) has free boundary edges: a node whose closest point
+lies on one (or on a free boundary vertex) has no side and is out of contact, so there is
+no contact beyond the sheet's edge (a lip may wrap around the incisors' edge).
 
-Energy, force, tangent (per slave node i, stiffness k_i = penalty * A_i, A_i its
-tributary area, penalty in N/mm^3):
+Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
+below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
 
-    Psi_i = 1/2 k_i g^2 = k_i F,  F = 1/2 |d|^2          where g < 0 (else 0),
-    dPsi/dx = k_i d = k_i g n     (the contact force on the node is -k_i d = k_i |g| n),
-    d2Psi/dx dx = k_i (I - dc/dx) = k_i n n on a face, k_i (I - t t) on an edge (unit
-    edge direction t), k_i I at a vertex.
+    Psi_i = 1/2 k_i g^2 = k_i F                          where g <= 0 (else 0),
+    dPsi/dx = k_i d                (the contact force on the node, -k_i d = k_i p n),
+    d2Psi/dx dx = k_i (I - dc/dx) = k_i n n on a face, k_i (I - t t) on an edge (t its
+                  unit direction), k_i I at a vertex.
 
-On a face, where the normal of a rigid facet does not rotate, the tangent is k n n; on
-edges and vertices the closest point moves and the full I - dc/dx is kept. For a
-deformable master triangle (x_1, x_2, x_3) the same F is differentiated over all four
-nodes with the envelope theorem (solver.kernels.contact): dF/dX_a = N_a d,
-N = (1, -w_1, -w_2, -w_3) (w: barycentric weights of c), and the Hessian
-N N^T (x) I - B M^-1 B^T carries the rotation of the master's normal and the sliding of
-c exactly. Psi is C1 across g = 0 and across feature changes, so Newton with the line
-search converges; the tangent is the exact Hessian for a fixed active set (checked by
-finite differences in tests/test_contact.py).
+On a rigid facet the normal does not rotate and the tangent is k n n; on edges and
+vertices the closest point moves and the full I - dc/dx is kept. For a deformable master
+triangle (x_1, x_2, x_3) the same F is differentiated over all four nodes by the envelope
+theorem (solver.kernels.contact): dF/dX_a = N_a d with N = (1, -w_1, -w_2, -w_3)
+(w: barycentric weights of c), and the Hessian N N^T (x) I - B M^-1 B^T carries the
+rotation of the master's normal and the sliding of c exactly. Psi is C1 across g = 0
+and where the closest point changes feature (not where the nearest triangle jumps across
+a medial axis, nor at a free edge, where a penetrating node is released); the tangent is
+its exact Hessian for a fixed active set (finite-difference checks in
+tests/test_contact.py). Optionally (onset e > 0 mm) the
+energy starts as k_i p^3 / (6 e) and joins k_i (F - e p / 2 + e^2 / 6) at p = e (C2):
+the stiffness then grows from zero instead of jumping to k_i at first touch, which helps
+Newton through many grazing contacts (lip on lip: OOP 0.5 on the reference face with lip
+and teeth contact, 188 iterations at e = 0, 132 at e = 0.02 mm); the penetration at a
+force f is then f / k_i + e / 2, and touching nodes carry no stiffness.
 
-Penalty choice. A node carrying a force f penetrates by f / (penalty * A). With the
-default penalty = 10 N/mm^3 and lip-node areas of 2 - 7 mm^2 (the reference face's lip
-surfaces), one node takes 1 N at 0.015 - 0.05 mm: a total lip force of 1 N, shared by
-several nodes, stays well below 0.05 mm. This is about 2000 times the tissue's shear
-modulus per mm (mu = 5 kPa) and 4 times its bulk modulus per mm of a lip element (2.5 MPa
-over 2.6 mm), and Newton (a direct solver, a residual line search) converges in a few
-iterations over the active-set changes, so pure penalty is used: no augmented-Lagrangian
-update, whose one update per load step would not converge the multipliers anyway.
+Penalty choice: PENALTY = 1 N/mm^3, pure penalty, no augmented Lagrangian. A node with
+the force f penetrates by f / (penalty A_i), i.e. a contact pressure p by p / penalty;
+lip-node areas on the reference face are 2 - 20 mm^2 (slave stiffness 2 - 20 N/mm). On the
+reference face (teeth contact, the lip-surface nodes within 3 mm of the teeth): OOP 0.5
+puts 0.16 N on the lower teeth at 0.006 mm, OOM 1.0 0.38 N at 0.011 mm, OOP + OOM 1.0
+0.79 N at 0.019 mm: about 0.025 mm per N, half the 0.05 mm tolerance at 1 N. Stiffer
+penalties converge worse with Newton's current line search, whose secant steps do not
+bracket the kink of a new contact, so that an iteration often stops just before it: OOP
+0.5 takes 14 iterations at 1 N/mm^3, 51 at 2, 115 at 10 (15 with a bracketing line
+search). An augmented-Lagrangian update in commit() would come once per load step, too
+rarely to converge the multipliers, and the penetrations above are already 2.5 to 15 times
+below the tolerance.
 
 RigidContact: node-on-rigid-surface (lips and cheeks on the teeth). The sheet (an open
 surface, any triangle orientation) is oriented towards the tissue: by the side on which
 most slaves' tissue lies at rest (the mean centroid of each slave's bricks, which is off
 the surface even where the slave touches it); slave nodes behind the oriented sheet at
-rest by more than rest_tolerance are dropped (ids in .dropped). Search: a cKDTree of the triangle centroids; each slave keeps the
-triangles whose centroid is within search_radius + (largest centroid-vertex distance) +
-margin of its position when the list was made, refreshed once a slave has moved by more
-than margin. So every triangle within search_radius of a slave is a candidate, and
-penetrations deeper than search_radius are not seen.
+rest by more than rest_tolerance, or whose faces do not face it (zero area), are dropped
+(ids in .dropped). A slave's area is that of its boundary faces (a quarter each)
+projected on the normal of the nearest surface triangle. Search: a cKDTree of the
+triangle centroids; each slave keeps the triangles whose centroid is within
+search_radius + (largest centroid-vertex distance) + margin of its position when the list
+was made, rebuilt once a slave has moved by more than margin. So every triangle within
+search_radius of a slave is a candidate; penetrations deeper than search_radius are not
+seen.
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
 and the reverse; quads split into two triangles). The sparsity pattern is built once, so
 the candidate (slave node, master triangle) pairs are fixed at rest: master triangles
-within radius of the slave, facing it (slave's area-weighted normal . triangle normal < 0,
-which keeps the back and the filled caps of a closed lip surface out), at most max_pairs
+within radius of the slave that face it (normals opposed: the slave's area-weighted
+normal . the triangle's normal < 0, and the slave in front of the triangle's plane),
+which keeps the backs and the filled caps of closed lip surfaces out; at most max_pairs
 nearest per slave. Nodes on both surfaces (the joined mouth corners) are no slaves, and a
-slave inside the other lip at rest is dropped. Each slave takes its nearest candidate;
-penetrations deeper than depth are ignored (a node that came in elsewhere than through its
-candidates). Inactive pairs scatter zeros.
+slave inside the other lip at rest by more than rest_tolerance is dropped. Each slave
+takes its nearest candidate; penetrations deeper than depth are ignored (a node that came
+in elsewhere than through its candidates). Inactive pairs scatter zeros. On a half model
+the lip surfaces end on the symmetry plane: their edges there are mirror edges, whose
+pseudo-normals include the mirrored surface, not free edges.
 
 After each assembly both terms hold: gap (s,) signed gaps of their slaves (inf: no
-candidate or a free boundary), n_active, max_penetration (mm, >= 0), total_force (N, the
-sum of the slaves' normal force magnitudes k_i |g_i|) and nodal_force (n, 3): the contact
-force on every mesh node (on the slaves and, for LipContact, on the master nodes).
+candidate or a free boundary), force (s,) the slaves' normal contact forces (N), n_active,
+max_penetration (mm, >= 0), total_force (N, the sum of force) and nodal_force (n, 3): the
+contact force on every mesh node (on the slaves and, for LipContact, on the master nodes).
 """
 
 import numpy as np
@@ -75,7 +91,8 @@ from ..kernels.contact import (nearest, pair_distances, rigid_contact, surface_c
                                surface_normals)
 from .base import Term
 
-PENALTY = 10.0             # N/mm^3: contact pressure per mm of penetration
+PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
+FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
 def triangulate(faces):
@@ -88,21 +105,30 @@ def triangulate(faces):
     return np.ascontiguousarray(tris[keep])
 
 
-def tributary_areas(x, tris, n):
-    """(n,) a third of the area of the triangles tris (t, 3) over points x at each vertex."""
-    a = 0.5 * np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]],
-                                      x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
-    return np.bincount(tris.ravel(), np.repeat(a / 3.0, 3), minlength=n)
+def tributary_areas(x, faces, n):
+    """(n,) node areas of faces (f, 3) or (f, 4) over points x: each face's area shared
+    equally by its corners (a node repeated in a degenerate quad takes two shares)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    if faces.shape[1] == 3:
+        a = np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
+    else:
+        a = np.cross(x[faces[:, 2]] - x[faces[:, 0]], x[faces[:, 3]] - x[faces[:, 1]])
+    share = 0.5 * np.linalg.norm(a, axis=1) / faces.shape[1]
+    return np.bincount(faces.ravel(), np.repeat(share, faces.shape[1]), minlength=n)
 
 
 class _Topology:
     """Edge neighbours of triangles tris (t, 3) over p points: nbr (t, 3) the triangle
-    across edge j = (j, j + 1 mod 3) or -1, free_edge (t, 3), free_vertex (p,)."""
+    across edge j = (j, j + 1 mod 3) or -1, free_edge (t, 3), free_vertex (p,). An edge
+    without a neighbour whose two nodes are in mirror (p,) bool (the symmetry plane x = 0 of
+    a half model) is a mirror edge (mirror_edge (t, 3)), not free; mirror_vertex (p,)
+    marks its nodes."""
 
-    def __init__(self, tris, p):
+    def __init__(self, tris, p, mirror=None):
         t = len(tris)
-        e = np.sort(np.stack([tris, np.roll(tris, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-        _, inv, count = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+        edges = np.stack([tris, np.roll(tris, -1, axis=1)], axis=2)        # (t, 3, 2)
+        _, inv, count = np.unique(np.sort(edges.reshape(-1, 2), axis=1), axis=0,
+                                  return_inverse=True, return_counts=True)
         inv = inv.ravel()
         if count.max(initial=0) > 2:
             raise ParameterError("a contact surface has an edge shared by more than two "
@@ -113,24 +139,36 @@ class _Topology:
         nbr = -np.ones(3 * t, dtype=np.int64)
         nbr[a], nbr[b] = b // 3, a // 3
         self.nbr = nbr.reshape(t, 3)
-        self.free_edge = self.nbr < 0
+        on_plane = np.zeros((t, 3), dtype=bool) if mirror is None else mirror[edges].all(axis=2)
+        self.mirror_edge = (self.nbr < 0) & on_plane
+        self.free_edge = (self.nbr < 0) & ~on_plane
         self.free_vertex = np.zeros(p, dtype=bool)
-        fe = np.stack([tris, np.roll(tris, -1, axis=1)], axis=2)[self.free_edge]
-        self.free_vertex[fe.ravel()] = True
+        self.free_vertex[edges[self.free_edge].ravel()] = True
+        self.mirror_vertex = np.zeros(p, dtype=bool)
+        self.mirror_vertex[edges[self.mirror_edge].ravel()] = True
 
 
 class _Normals:
-    """Face, edge and vertex (pseudo-)normals of a triangle surface, refreshed by update."""
+    """Face, edge and vertex (pseudo-)normals of a triangle surface, refreshed by update;
+    on mirror edges and vertices (see _Topology) the normals of the mirrored surface
+    (x -> -x) are included: their x component vanishes."""
 
-    def __init__(self, tris, p):
+    def __init__(self, tris, p, mirror=None):
         self.tris = tris
-        self.topo = _Topology(tris, p)
+        self.verts = np.unique(tris)
+        self.topo = _Topology(tris, p, mirror)
         self.fn = np.empty((len(tris), 3))
         self.en = np.empty((len(tris), 3, 3))
         self.vn = np.empty((p, 3))
+        self._me = np.nonzero(self.topo.mirror_edge)
+        self._mv = np.flatnonzero(self.topo.mirror_vertex)
 
     def update(self, x):
-        surface_normals(x, self.tris, self.topo.nbr, self.fn, self.en, self.vn)
+        surface_normals(x, self.tris, self.topo.nbr, self.verts, self.fn, self.en, self.vn)
+        for n, rows in ((self.en, self._me), (self.vn, self._mv)):
+            m = n[rows]
+            m[:, 0] = 0.0
+            n[rows] = m / np.linalg.norm(m, axis=1)[:, None]
         return self
 
     def args(self):
@@ -139,7 +177,7 @@ class _Normals:
 
 
 def _lists(tree, x, r):
-    """CSR candidate lists (ptr (s + 1,), ids) of the tree's points within r (or (s,)) of
+    """CSR lists (ptr (s + 1,), ids) of the tree's points within r (scalar or (s,)) of
     the points x (s, 3)."""
     lists = tree.query_ball_point(x, r)
     ptr = np.zeros(len(x) + 1, dtype=np.int64)
@@ -149,7 +187,7 @@ def _lists(tree, x, r):
 
 def _nearest_lists(xv, tris, x):
     """Candidate lists (ptr, triangles) of points x (s, 3) that hold each point's nearest
-    triangle: centroids within (distance to the nearest centroid + reach)."""
+    triangle: the centroids within (distance to the nearest centroid + reach)."""
     cen = xv[tris].mean(axis=1)
     reach = np.linalg.norm(xv[tris] - cen[:, None], axis=2).max()
     tree = cKDTree(cen)
@@ -162,24 +200,32 @@ def surface_distance(points, surface):
     xv = np.ascontiguousarray(surface.vertices, dtype=np.float64)
     x = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     ptr, cand = _nearest_lists(xv, tris, x)
-    w = np.empty(3)
-    return np.sqrt([nearest(p, xv, tris, cand[a:b], w)[2]
+    w, wt = np.empty(3), np.empty(3)
+    return np.sqrt([nearest(p, xv, tris, cand[a:b], w, wt)[2]
                     for p, a, b in zip(x, ptr[:-1], ptr[1:])])
 
 
 def nodes_near(mesh, nodes, surface, distance):
-    """The nodes (k,) among node ids nodes whose rest distance to surface is <= distance."""
+    """The node ids (k,) among nodes whose rest distance to surface is <= distance (mm)."""
     nodes = np.asarray(nodes, dtype=np.int64)
     return nodes[surface_distance(mesh.nodes[nodes], surface) <= distance]
 
 
-def _boundary_areas(mesh, nodes):
-    """(s,) tributary area of nodes on the mesh's boundary faces; refuses inner nodes."""
-    area = tributary_areas(mesh.nodes, triangulate(mesh.boundary_faces()), mesh.n_nodes)[nodes]
-    if (area <= 0).any():
-        raise ParameterError(f"slave node {mesh.node_ids[nodes[np.argmax(area <= 0)]]} is "
-                             "not on the mesh's boundary (give area= explicitly)")
-    return area
+def _facing_areas(mesh, nodes, xv, tris, fn):
+    """(s,) areas of nodes projected on the rigid surface: each boundary face of the mesh
+    shares its area, projected on the normal fn of the surface triangle nearest to it
+    (zero where it does not face the surface), equally among its corners."""
+    faces = mesh.boundary_faces()
+    faces = faces[np.isin(faces, nodes).any(axis=1)]
+    x = mesh.nodes
+    a = 0.5 * np.cross(x[faces[:, 2]] - x[faces[:, 0]], x[faces[:, 3]] - x[faces[:, 1]])
+    cen = x[faces].mean(axis=1)
+    ptr, cand = _nearest_lists(xv, tris, cen)
+    w, wt = np.empty(3), np.empty(3)
+    t = np.array([cand[lo + nearest(c, xv, tris, cand[lo:hi], w, wt)[0]]
+                  for c, lo, hi in zip(cen, ptr[:-1], ptr[1:])], dtype=np.int64)
+    share = np.maximum(0.0, -(a * fn[t]).sum(axis=1)) / 4.0
+    return np.bincount(faces.ravel(), np.repeat(share, 4), minlength=mesh.n_nodes)[nodes]
 
 
 def _tissue_points(mesh, nodes):
@@ -191,16 +237,22 @@ def _tissue_points(mesh, nodes):
     return acc[nodes] / count[nodes, None]
 
 
+def _check(penalty, onset):
+    if not penalty > 0:
+        raise ParameterError(f"penalty = {penalty!r} must be > 0 (N/mm^3)")
+    if not onset >= 0:
+        raise ParameterError(f"onset = {onset!r} must be >= 0 (mm)")
+
+
 class _Report:
     """Contact measures of the last assembly (see the module docstring)."""
 
-    def _report(self, gap, k, nodal_force):
-        act = gap < 0
-        self.gap = gap
-        self.n_active = int(act.sum())
-        self.max_penetration = float(-gap[act].min()) if self.n_active else 0.0
-        self.total_force = float((k[act] * -gap[act]).sum())
-        self.nodal_force = nodal_force
+    def _report(self, gap, force, nodal_force):
+        active = gap <= 0
+        self.gap, self.force, self.nodal_force = gap, force, nodal_force
+        self.n_active = int(active.sum())
+        self.max_penetration = float(-gap[active].min()) if self.n_active else 0.0
+        self.total_force = float(force.sum())
 
 
 class RigidContact(Term, _Report):
@@ -210,25 +262,22 @@ class RigidContact(Term, _Report):
     slave_nodes     (s,) node ids that may touch (e.g. lip nodes near the teeth)
     surface         solver.anatomy.RigidSurface (vertices (p, 3), triangles (t, 3))
     penalty         N/mm^3; node stiffness k_i = penalty * area_i (N/mm)
-    area            (s,) mm^2 tributary areas; default: from the mesh's boundary faces
+    area            (s,) mm^2 node areas; default: the mesh's boundary faces around each
+                    slave, projected on the surface's normal
     search_radius   mm: contact is searched within it (the deepest penetration seen)
     margin          mm: slave motion allowed before the candidate lists are rebuilt
     rest_tolerance  mm: slaves behind the surface at rest by more are dropped
+    onset           mm: length of the cubic onset of the penalty (0: pure penalty)
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
-                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1):
-        if not penalty > 0:
-            raise ParameterError(f"penalty = {penalty!r} must be > 0 (N/mm^3)")
-        self.name = name
-        self.mesh = mesh
+                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, onset=0.0):
+        _check(penalty, onset)
+        self.name, self.mesh, self.onset = name, mesh, float(onset)
         slaves = np.asarray(slave_nodes, dtype=np.int64).ravel()
-        area = _boundary_areas(mesh, slaves) if area is None else \
-            np.broadcast_to(np.asarray(area, dtype=np.float64), slaves.shape)
         self.vertices = np.ascontiguousarray(surface.vertices, dtype=np.float64)
         tris = np.ascontiguousarray(surface.triangles, dtype=np.int64)
         self.search_radius, self.margin = float(search_radius), float(margin)
-        # orientation: the side of the tissue at each slave (its bricks' mean centroid)
         vote = self._rest_gaps(tris, _tissue_points(mesh, slaves))
         sided = np.isfinite(vote) & (vote != 0)
         if not sided.any():
@@ -236,32 +285,35 @@ class RigidContact(Term, _Report):
         self.flipped = bool((vote[sided] < 0).sum() > (vote[sided] > 0).sum())
         if self.flipped:
             tris = np.ascontiguousarray(tris[:, ::-1])
+        self.tris = tris
+        self.normals = _Normals(tris, len(self.vertices)).update(self.vertices)
+        area = _facing_areas(mesh, slaves, self.vertices, tris, self.normals.fn) \
+            if area is None else np.broadcast_to(np.asarray(area, dtype=np.float64), slaves.shape)
         gap0 = self._rest_gaps(tris, mesh.nodes[slaves])
-        keep = ~(gap0 < -rest_tolerance)
+        keep = ~(gap0 < -rest_tolerance) & (area > 0)
         self.dropped = slaves[~keep]
         self.slaves = slaves[keep]
         self.initial_gap = gap0[keep]
         self.k = penalty * area[keep]
-        self.tris = tris
-        self.normals = _Normals(tris, len(self.vertices)).update(self.vertices)
         centroids = self.vertices[tris].mean(axis=1)
         self._tree = cKDTree(centroids)
         self._reach = np.linalg.norm(self.vertices[tris] - centroids[:, None], axis=2).max()
         self._cached = None
         s = len(self.slaves)
         self._fe, self._ke = np.zeros((s, 3)), np.zeros((s, 3, 3))
-        self.gap, self.tri = np.full(s, np.inf), -np.ones(s, dtype=np.int64)
-        self._report(self.gap, self.k, np.zeros((mesh.n_nodes, 3)))
+        self.tri = -np.ones(s, dtype=np.int64)
+        self._report(np.full(s, np.inf), np.zeros(s), np.zeros((mesh.n_nodes, 3)))
 
     def _rest_gaps(self, tris, x):
-        """(s,) signed rest gaps of points x (s, 3), whatever their distance."""
+        """(s,) signed gaps of points x (s, 3) to the triangles tris, whatever their
+        distance."""
         normals = _Normals(tris, len(self.vertices)).update(self.vertices)
         s = len(x)
         ptr, cand = _nearest_lists(self.vertices, tris, x)
         gap = np.empty(s)
-        rigid_contact(x, np.zeros(s), self.vertices, tris, ptr, cand, *normals.args(), np.inf,
-                      False, np.zeros((s, 3)), np.zeros((s, 3, 3)), gap,
-                      -np.ones(s, dtype=np.int64))
+        rigid_contact(np.ascontiguousarray(x), np.zeros(s), self.vertices, tris, ptr, cand,
+                      *normals.args(), np.inf, 0.0, False, np.zeros((s, 3)),
+                      np.zeros((s, 3, 3)), gap, np.zeros(s), -np.ones(s, dtype=np.int64))
         return gap
 
     def blocks(self):
@@ -278,13 +330,14 @@ class RigidContact(Term, _Report):
     def assemble(self, state, asm, block_ids):
         x = self.mesh.nodes[self.slaves] + state.u[self.slaves]
         ptr, cand = self._candidates(x)
+        gap, force = np.empty(len(x)), np.empty(len(x))
         asm.energy += rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand,
-                                    *self.normals.args(), self.search_radius, asm.need_k,
-                                    self._fe, self._ke, self.gap, self.tri)
+                                    *self.normals.args(), self.search_radius, self.onset,
+                                    asm.need_k, self._fe, self._ke, gap, force, self.tri)
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)
-        force = np.zeros((self.mesh.n_nodes, 3))
-        force[self.slaves] = -self._fe
-        self._report(self.gap, self.k, force)
+        nodal = np.zeros((self.mesh.n_nodes, 3))
+        nodal[self.slaves] = -self._fe
+        self._report(gap, force, nodal)
 
 
 class LipContact(Term, _Report):
@@ -297,42 +350,53 @@ class LipContact(Term, _Report):
     radius         mm: candidate pairs are master triangles within radius at rest
     max_pairs      the nearest candidate triangles kept per slave
     depth          mm: deeper penetrations are ignored
+    rest_tolerance mm: slaves inside the other lip at rest by more are dropped
+    onset          mm: length of the cubic onset of the penalty (0: pure penalty)
+    mirror_nodes   node ids on the symmetry plane x = 0 of a half model (its 'midsagittal'
+                   set): surface edges between two of them are mirrored, not free
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
-                 radius=6.0, max_pairs=24, depth=2.0):
-        if not penalty > 0:
-            raise ParameterError(f"penalty = {penalty!r} must be > 0 (N/mm^3)")
-        self.name, self.mesh, self.depth = name, mesh, float(depth)
+                 radius=6.0, max_pairs=12, depth=2.0, rest_tolerance=0.1, onset=0.0,
+                 mirror_nodes=None):
+        _check(penalty, onset)
+        self.name, self.mesh = name, mesh
+        self.depth, self.onset = float(depth), float(onset)
         n = mesh.n_nodes
+        mirror = None
+        if mirror_nodes is not None:
+            mirror = np.zeros(n, dtype=bool)
+            mirror[np.asarray(mirror_nodes, dtype=np.int64)] = True
         surf = [triangulate(upper_faces), triangulate(lower_faces)]
-        self.normals = [_Normals(t, n).update(mesh.nodes) for t in surf]
-        areas = [tributary_areas(mesh.nodes, t, n) for t in surf]
-        self.passes = []
-        self.dropped = []
+        self.normals = [_Normals(t, n, mirror).update(mesh.nodes) for t in surf]
+        areas = [tributary_areas(mesh.nodes, f, n) for f in (upper_faces, lower_faces)]
+        self.passes, dropped = [], []
         for s, m in ((0, 1), (1, 0)):
             slaves = np.setdiff1d(np.unique(surf[s]), np.unique(surf[m]))
-            slaves, ptr, pair_tri, dropped = self._pairs(slaves, s, m, radius, max_pairs)
-            self.dropped.append(dropped)
+            slaves, ptr, pair_tri, out = self._pairs(slaves, s, m, radius, max_pairs,
+                                                     rest_tolerance)
+            dropped.append(out)
             p = len(pair_tri)
+            owner = np.repeat(np.arange(len(slaves)), np.diff(ptr))
             self.passes.append({
                 "slaves": slaves, "master": m, "ptr": ptr, "pair_tri": pair_tri,
                 "k": penalty * areas[s][slaves],
-                "nodes": np.column_stack([slaves[np.repeat(np.arange(len(slaves)),
-                                                           np.diff(ptr))], surf[m][pair_tri]]),
+                "nodes": np.column_stack([slaves[owner], surf[m][pair_tri]]),
                 "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
-                "gap": np.full(len(slaves), np.inf),
-                "active": -np.ones(len(slaves), dtype=np.int64)})
-        self.dropped = np.concatenate(self.dropped)
+                "active": -np.ones(len(slaves), dtype=np.int64),
+                "kept": -np.ones(len(slaves), dtype=np.int64)})
+        self.dropped = np.concatenate(dropped)
         self.slaves = np.concatenate([q["slaves"] for q in self.passes])
         self.k = np.concatenate([q["k"] for q in self.passes])
-        self._report(np.full(len(self.slaves), np.inf), self.k, np.zeros((n, 3)))
+        s = len(self.slaves)
+        self._report(np.full(s, np.inf), np.zeros(s), np.zeros((n, 3)))
 
     @property
     def n_pairs(self):
+        """The number of candidate pairs (both passes)."""
         return sum(len(q["pair_tri"]) for q in self.passes)
 
-    def _pairs(self, slaves, s, m, radius, max_pairs):
+    def _pairs(self, slaves, s, m, radius, max_pairs, rest_tolerance):
         """Candidate pairs at rest of slaves (nodes of surface s) on the triangles of
         surface m: (kept slaves, ptr, pair triangles, dropped slaves)."""
         x = self.mesh.nodes
@@ -346,17 +410,21 @@ class LipContact(Term, _Report):
         np.add.at(nrm, st, np.cross(x[st[:, 1]] - x[st[:, 0]], x[st[:, 2]] - x[st[:, 0]])[:, None])
         d2 = np.empty(len(ti))
         pair_distances(x[slaves[si]], x, tris, ti, d2)
-        ok = (d2 <= radius ** 2) & ((nrm[slaves[si]] * fn[ti]).sum(axis=1) < 0)
+        ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
+        ok = (d2 <= radius ** 2) & ((nrm[slaves[si]] * fn[ti]).sum(axis=1) < 0) \
+            & (ahead > -FACING_TOLERANCE)
         order = np.lexsort((d2[ok], si[ok]))                  # by slave, nearest first
         si, ti = si[ok][order], ti[ok][order]
-        rank = np.arange(len(si)) - np.searchsorted(si, si)
-        si, ti = si[rank < max_pairs], ti[rank < max_pairs]
+        first = np.arange(len(si)) - np.searchsorted(si, si) < max_pairs
+        si, ti = si[first], ti[first]
         ptr = np.searchsorted(si, np.arange(len(slaves) + 1))
-        gap = np.empty(len(slaves))
-        surface_contact(x, slaves, np.zeros(len(slaves)), tris, ptr, ti, *self.normals[m].args(),
-                        np.inf, False, np.zeros((len(ti), 12)), np.zeros((len(ti), 12, 12)),
-                        gap, -np.ones(len(slaves), dtype=np.int64))
-        inside = gap < 0
+        ns = len(slaves)
+        gap = np.empty(ns)
+        surface_contact(x, slaves, np.zeros(ns), tris, ptr, ti, *self.normals[m].args(),
+                        np.inf, 0.0, False, np.zeros((len(ti), 12)),
+                        np.zeros((len(ti), 12, 12)), gap, np.zeros(ns),
+                        -np.ones(ns, dtype=np.int64), -np.ones(ns, dtype=np.int64))
+        inside = gap < -rest_tolerance
         keep = (np.diff(ptr) > 0) & ~inside
         new = np.cumsum(keep) - 1
         sel = keep[si]
@@ -368,13 +436,38 @@ class LipContact(Term, _Report):
 
     def assemble(self, state, asm, block_ids):
         x = self.mesh.nodes + state.u
-        force = np.zeros((self.mesh.n_nodes, 3))
+        nodal = np.zeros((self.mesh.n_nodes, 3))
+        gaps, forces = [], []
         for q, b in zip(self.passes, block_ids):
             nrm = self.normals[q["master"]].update(x)
+            gap, force = np.empty(len(q["slaves"])), np.empty(len(q["slaves"]))
             asm.energy += surface_contact(x, q["slaves"], q["k"], nrm.tris, q["ptr"],
-                                          q["pair_tri"], *nrm.args(), self.depth, asm.need_k,
-                                          q["fe"], q["ke"], q["gap"], q["active"])
+                                          q["pair_tri"], *nrm.args(), self.depth, self.onset,
+                                          asm.need_k, q["fe"], q["ke"], gap, force,
+                                          q["active"], q["kept"])
             asm.add_block(b, q["fe"], q["ke"] if asm.need_k else None)
             act = q["active"][q["active"] >= 0]
-            np.add.at(force, q["nodes"][act], -q["fe"][act].reshape(-1, 4, 3))
-        self._report(np.concatenate([q["gap"] for q in self.passes]), self.k, force)
+            np.add.at(nodal, q["nodes"][act], -q["fe"][act].reshape(-1, 4, 3))
+            gaps.append(gap)
+            forces.append(force)
+        self._report(np.concatenate(gaps), np.concatenate(forces), nodal)
+
+
+def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, **options):
+    """The contact terms of an Anatomy: a RigidContact per rigid surface (named
+    '<surface>_contact'; slaves: the movable nodes of the lip contact surfaces within
+    teeth_distance (mm) of it at rest) when teeth, a LipContact when lips (mirrored on the
+    'midsagittal' nodes of a half anatomy); options go to every term (penalty, onset)."""
+    mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
+    terms = []
+    if teeth:
+        nodes = np.setdiff1d(np.unique(np.concatenate([f.ravel() for f in surfaces.values()])),
+                             mesh.node_sets.get("fixed", []))
+        for name, surface in anatomy.rigid_surfaces.items():
+            terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
+                                      surface, name=f"{name}_contact", **options))
+    if lips:
+        mirror = mesh.node_sets["midsagittal"] if anatomy.half else None
+        terms.append(LipContact(mesh, surfaces["upper_lip"], surfaces["lower_lip"],
+                                mirror_nodes=mirror, **options))
+    return terms

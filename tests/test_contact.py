@@ -1,0 +1,305 @@
+"""Frictionless penalty contact: finite-difference tangents, a block on a rigid plane, two
+blocks pressed together, sliding on an incline, the lips on the teeth of the reference face.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import solver
+from solver.anatomy.base import RigidSurface
+from solver.assembly import Assembly, Pattern
+from solver.kernels.contact import FACE, VERTEX, nearest
+from solver.meshgen import box
+from solver.terms.base import State
+from solver.terms.contact import (PENALTY, LipContact, RigidContact, nodes_near,
+                                  tributary_areas)
+
+STIFF = solver.MooneyRivlin(c10=0.05, c20=0.0, d=0.04)      # 20 x the face's tissue, MPa
+DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
+                           Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+                           / "reference-face"))
+
+
+def grid_surface(n, size, height=lambda x, y: 0.0 * x, rotation=np.eye(3)):
+    """A triangulated square [-size/2, size/2]^2 with z = height(x, y), rotated; the
+    triangles' normals point to +z (before the rotation)."""
+    g = np.linspace(-size / 2, size / 2, n + 1)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), height(X.ravel(), Y.ravel())]) @ rotation.T
+    nid = np.arange(len(V)).reshape(n + 1, n + 1)
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(n), np.arange(n), indexing="ij"))
+    T = np.vstack([np.column_stack([nid[i, j], nid[i + 1, j], nid[i + 1, j + 1]]),
+                   np.column_stack([nid[i, j], nid[i + 1, j + 1], nid[i, j + 1]])])
+    return RigidSurface(V, T)
+
+
+class Runner:
+    """Assemblies of one term alone over n nodes."""
+
+    def __init__(self, term, n):
+        self.term = term
+        self.pattern = Pattern(3 * n, term.blocks())
+
+    def __call__(self, u, need_k=True):
+        asm = Assembly(self.pattern, need_k)
+        self.term.assemble(State(np.asarray(u, dtype=float).reshape(-1, 3)), asm,
+                           list(range(len(self.pattern.dofs))))
+        return asm
+
+
+def fd_errors(term, u, h=1e-6):
+    """Relative errors of the tangent against central differences of the residual, and of
+    the residual against central differences of the energy, at u (n, 3)."""
+    run = Runner(term, len(u))
+    asm = run(u)
+    K, r = asm.matrix().toarray(), asm.residual
+    Kfd, rfd = np.zeros_like(K), np.zeros_like(r)
+    for j in np.flatnonzero(np.abs(K).sum(axis=0) + np.abs(r) > 0):
+        up, um = u.ravel().copy(), u.ravel().copy()
+        up[j] += h
+        um[j] -= h
+        ap, am = run(up, False), run(um, False)
+        Kfd[:, j] = (ap.residual - am.residual) / (2 * h)
+        rfd[j] = (ap.energy - am.energy) / (2 * h)
+    run(u)
+    return np.abs(K - Kfd).max() / np.abs(K).max(), np.abs(r - rfd).max() / np.abs(r).max()
+
+
+def two_blocks(gap=0.0, rng=None, jitter=0.0):
+    """Block A (8 x 8 x 3 mm, top at z = 0) under a smaller block B (5 x 5 x 3 mm, 4 x 4
+    bricks against A's 3 x 3, offset), B's bottom at z = gap. Returns the mesh, the node ids
+    of A and of B, and the closed boundary surfaces of A and B (outward quads)."""
+    a = box(3, 3, 2, (8.0, 8.0, 3.0), origin=(-4.0, -4.0, -3.0))
+    b = box(4, 4, 2, (5.0, 5.0, 3.0), origin=(-2.4, -2.6, gap))
+    nodes = np.vstack([a.nodes, b.nodes])
+    if jitter:
+        nodes += rng.uniform(-jitter, jitter, nodes.shape)
+    sets = {f"A_{k}": v for k, v in a.node_sets.items()}
+    sets.update({f"B_{k}": v + a.n_nodes for k, v in b.node_sets.items()})
+    mesh = solver.Mesh(nodes, np.vstack([a.bricks, b.bricks + a.n_nodes]), node_sets=sets)
+    ida, idb = np.arange(a.n_nodes), np.arange(a.n_nodes, mesh.n_nodes)
+    faces = mesh.boundary_faces()
+    in_a = np.isin(faces, ida).all(axis=1)
+    return mesh, ida, idb, faces[in_a], faces[~in_a]
+
+
+# ------------------------------------------------------------------ tangents (FD)
+
+@pytest.mark.parametrize("onset", [0.0, 0.5])
+def test_rigid_tangent_matches_finite_differences_on_faces_edges_and_vertices(rng, onset):
+    # a pyramid pit z = 0.2 (|x| + |y|): creases along x = 0 and y = 0 (concave edges),
+    # its apex a concave vertex; the block's bottom nodes sit over the apex, the creases
+    # and the flat faces
+    pit = grid_surface(4, 12.0, lambda x, y: 0.2 * (np.abs(x) + np.abs(y)))
+    mesh = box(2, 2, 1, (6.0, 6.0, 2.0), origin=(-3.0, -3.0, 1.3))
+    term = RigidContact(mesh, mesh.node_sets["zmin"], pit, onset=onset)
+    u = rng.normal(0.0, 0.05, (mesh.n_nodes, 3))
+    u[:, 2] -= 1.6
+    err_k, err_r = fd_errors(term, u)
+    assert term.n_active == 9 and not term.flipped
+    regions = set()
+    w = np.empty(3)
+    for i, node in enumerate(term.slaves):
+        regions.add(nearest(mesh.nodes[node] + u[node], pit.vertices, pit.triangles,
+                            term.tri[i:i + 1], w, np.empty(3))[1])
+    assert FACE in regions and regions & {1, 2, 3} and max(regions) >= VERTEX
+    if onset:
+        p = -term.gap
+        assert (p < onset).any() and (p > onset).any()          # both branches of the law
+    assert err_k < 1e-5 and err_r < 1e-5
+
+
+@pytest.mark.parametrize("onset", [0.0, 0.2])
+def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, onset):
+    mesh, ida, idb, fa, fb = two_blocks(rng=rng, jitter=0.15)   # warped master triangles
+    term = LipContact(mesh, fb, fa, onset=onset)
+    u = rng.normal(0.0, 0.05, (mesh.n_nodes, 3))
+    u[idb, 2] -= 0.4
+    err_k, err_r = fd_errors(term, u)
+    assert term.n_active >= 10
+    assert all((q["active"] >= 0).any() for q in term.passes)  # both passes engaged
+    # the master-side forces balance the slave-side ones, pair by pair
+    np.testing.assert_allclose(term.nodal_force.sum(axis=0), 0.0, atol=1e-12)
+    assert err_k < 1e-5 and err_r < 1e-5
+
+
+# ----------------------------------------------------------------- rigid surface
+
+def test_block_on_rigid_plane_carries_the_load():
+    L, F = 8.0, 1.0
+    mesh = box(4, 4, 2, (L, L, 4.0), origin=(-L / 2, -L / 2, 0.0))
+    plane = grid_surface(5, 20.0)                       # its edges do not meet the block's
+    term = RigidContact(mesh, mesh.node_sets["zmin"], plane)
+    model = solver.Model(mesh)
+    model.fix(mesh.node_sets["xmin"], components=(0,))  # rollers: no normal (z) reaction
+    model.fix(mesh.node_sets["ymin"], components=(1,))
+    faces = mesh.boundary_faces()
+    top_faces = faces[np.isin(faces, mesh.node_sets["zmax"]).all(axis=1)]
+    load = F / L**2 * tributary_areas(mesh.nodes, top_faces, mesh.n_nodes)   # uniform
+    model.add_force(np.arange(mesh.n_nodes), np.outer(load, [0.0, 0.0, -1.0]))
+    model.add_term(term)
+    res = model.solve_static()
+    assert res.converged
+    assert term.n_active == len(term.slaves)
+    np.testing.assert_allclose(term.nodal_force.sum(axis=0), [0.0, 0.0, F], atol=0.01 * F)
+    assert term.total_force == pytest.approx(F, rel=0.01)
+    assert term.max_penetration < 0.05
+    # uniform pressure F / L^2 on k = penalty * area: a uniform penetration
+    np.testing.assert_allclose(-term.gap, F / L**2 / PENALTY, rtol=1e-3)
+
+
+def test_sheet_is_oriented_towards_the_tissue_and_nodes_behind_it_are_dropped():
+    mesh = box(2, 2, 2, (4.0, 4.0, 2.0), origin=(-2.0, -2.0, 0.5))
+    flipped = grid_surface(4, 12.0)
+    flipped.triangles = flipped.triangles[:, ::-1]            # normals down, away from it
+    term = RigidContact(mesh, mesh.node_sets["zmin"], flipped)
+    assert term.flipped and term.initial_gap.min() == pytest.approx(0.5)
+    # a sheet at z = 1.2, between the bottom (z = 0.5) and the top (z = 2.5) nodes: most
+    # slaves are above it, the bottom ones behind it are dropped
+    sheet = grid_surface(4, 12.0, lambda x, y: 0.0 * x + 1.2)
+    bottom, top = mesh.node_sets["zmin"][:4], mesh.node_sets["zmax"]
+    term = RigidContact(mesh, np.concatenate([bottom, top]), sheet, area=1.0)
+    assert not term.flipped
+    assert set(term.dropped) == set(bottom) and set(term.slaves) == set(top)
+    np.testing.assert_allclose(term.initial_gap, 1.3)
+
+
+def test_no_contact_beyond_the_free_edge_of_a_sheet():
+    sheet = grid_surface(2, 4.0)                              # [-2, 2]^2 at z = 0
+    mesh = box(1, 1, 1, (1.0, 1.0, 1.0), origin=(-0.5, -0.5, 0.2))
+    term = RigidContact(mesh, mesh.node_sets["zmin"], sheet, area=1.0)
+    u = np.zeros((mesh.n_nodes, 3))
+    u[:, 2] = -0.3                                            # 0.1 mm into the sheet
+    run = Runner(term, mesh.n_nodes)
+    run(u)
+    assert term.n_active == 4 and term.max_penetration == pytest.approx(0.1)
+    u[:, 0] = 2.0                                             # half the nodes off the edge
+    run(u)
+    assert term.n_active == 2 and np.isinf(term.gap).sum() == 2
+
+
+def test_block_slides_on_a_frictionless_incline():
+    theta = np.radians(25.0)
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])  # about x: z -> normal n
+    n, t = R[:, 2], R[:, 1]
+    plane = grid_surface(6, 30.0, rotation=R)
+    mesh = box(3, 3, 2, (6.0, 6.0, 3.0), origin=(-3.0, -3.0, 0.0),
+               mapping=lambda p: p @ R.T)
+    term = RigidContact(mesh, mesh.node_sets["zmin"], plane)
+    model = solver.Model(mesh)
+    model.add_term(term)
+    top = mesh.node_sets["zmax"]
+    slide, press = 2.0, 0.3
+    model.prescribe(top, displacement=slide * t - press * n)
+    res = model.solve_static(steps=2)
+    assert res.converged
+    reaction = res.reaction(top)                              # force on the block at its top
+    assert reaction @ n < -0.02                               # pressed into the plane
+    assert abs(reaction @ t) < 1e-4 * abs(reaction @ n)       # no tangential resistance
+    assert abs(reaction[0]) < 1e-4 * abs(reaction @ n)
+    np.testing.assert_allclose(term.nodal_force.sum(axis=0), -reaction, atol=1e-6)
+    bottom = res.displacement[mesh.node_sets["zmin"]] @ t
+    assert bottom.mean() == pytest.approx(slide, rel=0.02)     # it slid along
+    assert term.max_penetration < 0.05
+
+
+# --------------------------------------------------------------------- lip on lip
+
+def test_two_blocks_pressed_together_by_forces():
+    F = 1.0                                                  # N, on 25 mm^2
+    mesh, ida, idb, fa, fb = two_blocks()
+    term = LipContact(mesh, fb, fa)                          # closed surfaces of both blocks
+    Runner(term, mesh.n_nodes)(np.zeros((mesh.n_nodes, 3)))
+    assert len(term.dropped) == 0 and term.max_penetration < 1e-12
+    assert np.abs(mesh.nodes[term.slaves[term.gap <= 0], 2]).max() == 0.0  # touching faces
+    model = solver.Model(mesh, STIFF)
+    model.fix(mesh.node_sets["A_zmin"])
+    model.fix(mesh.node_sets["B_xmin"], components=(0,))
+    model.fix(mesh.node_sets["B_ymin"], components=(1,))
+    top = mesh.node_sets["B_zmax"]
+    model.add_force(top, np.outer(np.full(len(top), F / len(top)), [0.0, 0.0, -1.0]))
+    model.add_term(term)
+    res = model.solve_static(steps=2)
+    assert res.converged
+    on_a, on_b = term.nodal_force[ida].sum(axis=0), term.nodal_force[idb].sum(axis=0)
+    np.testing.assert_allclose(on_b, [0.0, 0.0, F], atol=0.01 * F)
+    np.testing.assert_allclose(on_a, -on_b, atol=1e-9)        # equal and opposite
+    assert term.max_penetration < 0.05
+    act = term.slaves[term.gap <= 0]                          # only the facing faces touch
+    assert len(act) >= 10 and np.abs(mesh.nodes[act, 2]).max() == 0.0
+    assert res.reaction(mesh.node_sets["A_zmin"])[2] == pytest.approx(F, rel=0.01)  # support
+
+
+def test_half_model_keeps_contact_on_the_symmetry_plane():
+    # the halves x <= 0 of two touching blocks; their contact faces end on x = 0
+    a = box(2, 2, 1, (4.0, 4.0, 2.0), origin=(-4.0, -2.0, -2.0))
+    b = box(2, 2, 1, (3.0, 3.0, 2.0), origin=(-3.0, -1.5, 0.0))
+    mesh = solver.Mesh(np.vstack([a.nodes, b.nodes]), np.vstack([a.bricks, b.bricks + a.n_nodes]))
+    faces = mesh.boundary_faces()
+    x = mesh.nodes
+    top_a = faces[(np.isin(faces, np.arange(a.n_nodes)) & (x[faces, 2] == 0)).all(axis=1)]
+    bottom_b = faces[(np.isin(faces, np.arange(a.n_nodes, mesh.n_nodes))
+                      & (x[faces, 2] == 0)).all(axis=1)]
+    plane = np.flatnonzero(x[:, 0] == 0.0)
+    u = np.zeros((mesh.n_nodes, 3))
+    u[a.n_nodes:] = [0.01, 0.0, -0.1]                         # B pressed in, x = 0 nodes out
+    on_plane_b = np.intersect1d(plane, b.node_sets["zmin"] + a.n_nodes)
+    cut = LipContact(mesh, bottom_b, top_a)
+    Runner(cut, mesh.n_nodes)(u)
+    assert not np.isin(on_plane_b, cut.slaves[cut.gap <= 0]).any()  # released: free edge
+    half = LipContact(mesh, bottom_b, top_a, mirror_nodes=plane)
+    Runner(half, mesh.n_nodes)(u)
+    assert np.isin(on_plane_b, half.slaves[half.gap <= 0]).all()     # mirrored: in contact
+    assert half.max_penetration == pytest.approx(0.1, abs=1e-3)
+
+
+# -------------------------------------------------------------- reference face
+
+@pytest.fixture(scope="module")
+def face_anatomy():
+    if not (DATA / "newface.node").is_file():
+        pytest.skip(f"reference face data not found in {DATA}")
+    from solver.anatomy.ansys import load_ansys_face
+    return load_ansys_face(str(DATA))
+
+
+def _teeth_terms(anatomy, distance=3.0):
+    lips = np.unique(np.concatenate([f.ravel() for f in anatomy.contact_surfaces.values()]))
+    return [RigidContact(anatomy.mesh, nodes_near(anatomy.mesh, lips, surface, distance),
+                         surface, name=name)
+            for name, surface in anatomy.rigid_surfaces.items()]
+
+
+def test_face_lips_on_teeth_under_oop(face_anatomy):
+    free = solver.FaceModel(face_anatomy)
+    free.set_activations({"OOP": 0.5})
+    assert free.solve_static().converged
+    face = solver.FaceModel(face_anatomy)
+    teeth = _teeth_terms(face_anatomy)
+    for term in teeth:
+        assert len(term.slaves) > 50
+        assert term.initial_gap.min() > 0.1                  # no initial penetration
+        face.model.add_term(term)
+    face.model.system().assemble(np.zeros(3 * face_anatomy.mesh.n_nodes))
+    assert all(t.n_active == 0 and t.max_penetration == 0.0 for t in teeth)
+    for term in teeth:                                        # without teeth: lips go in
+        Runner(term, face_anatomy.mesh.n_nodes)(free.u)
+    assert max(t.max_penetration for t in teeth) > 0.2
+    face.set_activations({"OOP": 0.5})
+    res = face.solve_static()
+    assert res.converged
+    for term in teeth:
+        assert term.n_active > 0 and term.max_penetration < 0.05
+    with_teeth, without = face.lip_outputs(), free.lip_outputs()
+    print(f"\nOOP 0.5 lip protrusion (mm): without teeth {without['lip_protrusion']:.3f} "
+          f"(upper {without['upper_lip_protrusion']:.3f}, lower "
+          f"{without['lower_lip_protrusion']:.3f}); with teeth "
+          f"{with_teeth['lip_protrusion']:.3f} (upper {with_teeth['upper_lip_protrusion']:.3f},"
+          f" lower {with_teeth['lower_lip_protrusion']:.3f}); iterations {res.iterations}; "
+          + "; ".join(f"{t.name}: {t.n_active} nodes, {t.total_force:.3f} N, "
+                      f"{t.max_penetration:.4f} mm" for t in teeth))
+    assert with_teeth["lip_protrusion"] > without["lip_protrusion"] + 0.2
