@@ -9,12 +9,10 @@ protrusion (mm) against the full run.
 """
 
 import argparse
-import csv
 import time
 
-import numpy as np
-
 from solver.simulation import Simulation, resolve_scene
+from table import report
 
 SWITCHES = {"inertia": "inertia", "damping": "damping", "stiffening": "stiffening",
             "lip_contact": "lip_contact", "teeth_contact": "teeth_contact",
@@ -55,17 +53,8 @@ def main(argv=None):
             row["d_protrusion_mm"] = max(abs(a["lip_protrusion"] - b["lip_protrusion"])
                                          for a, b in zip(ref, rows))
         table.append(row)
-    keys = ["effect", "share_of_assembly", "wall_without_s", "d_aperture_mm", "d_protrusion_mm"]
-    print(" | ".join(keys))
-    print(" | ".join("---" for _ in keys))
-    for r in table:
-        print(" | ".join(f"{r[k]:.3g}" if isinstance(r.get(k), float) else str(r.get(k, "-"))
-                         for k in keys))
-    if args.csv:
-        with open(args.csv, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=keys, restval="")
-            w.writeheader()
-            w.writerows(table)
+    report(table, ["effect", "share_of_assembly", "wall_without_s", "d_aperture_mm",
+                   "d_protrusion_mm"], args.csv)
 
 
 if __name__ == "__main__":

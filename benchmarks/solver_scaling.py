@@ -10,7 +10,6 @@ Times are the best of --repeat runs after a warm-up (numba compiled and cached).
 """
 
 import argparse
-import csv
 import time
 
 import numpy as np
@@ -18,6 +17,7 @@ import numpy as np
 import solver
 from solver.linsolve import available, make_solver
 from solver.meshgen import box
+from table import report
 
 
 def best_of(fn, repeat):
@@ -114,18 +114,8 @@ def main(argv=None):
         r = rows[-1]
         print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in r.items()), flush=True)
-    keys = list(dict.fromkeys(k for r in rows for k in r))
     print()
-    print(" | ".join(keys))
-    print(" | ".join("---" for _ in keys))
-    for r in rows:
-        print(" | ".join(f"{r[k]:.3g}" if isinstance(r.get(k), float) else str(r.get(k, ""))
-                         for k in keys))
-    if args.csv:
-        with open(args.csv, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=keys, restval="")
-            w.writeheader()
-            w.writerows(rows)
+    report(rows, csv_path=args.csv, missing="")
 
 
 if __name__ == "__main__":
