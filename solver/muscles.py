@@ -10,36 +10,50 @@ per-muscle force scale, default 1). The force falls linearly as the cable shorte
 vanishes at eps = -a s F_max / (A E) = -a s eps_c.
 
 Constants (defaults; every one is a parameter of MuscleProperties):
-* F_max = 1.0 N per fibre: the default maximum force of the face model's muscle segments
-  in ArtiSynth Models' face demos (which read this same ANSYS model); face models use
-  forces of the order of 1 N per fibre.
-* sigma_max = 0.1 MPa (100 kPa): the maximum muscle stress of ArtiSynth's element-based
-  face muscles; it sets the cable's cross-section A = F_max / sigma_max = 10 mm^2
-  (radius 1.8 mm, the order of the 2-3 mm stiffening radii of the paper's Figure 6).
+* Peak force per fibre F_max = sigma_max * pi r^2: the maximum stress of skeletal muscle
+  times the muscle's cross-section, a circle of the muscle's radius r (the same r that
+  bounds its stiffened neighbourhood, below).
+  - sigma_max = 0.1 MPa (100 kPa): the maximum stress of the element-based face muscles
+    in ArtiSynth Models' face demos (which read this same ANSYS model).
+  - r: 2 mm for ZYG and 3 mm for OOP (the paper's Figure 6); the others are estimates of
+    the same order (table STIFFENING_RADIUS_MM). So F_max is 2.83 N for OOP and BUC, 1.26 N
+    for ZYG, LLSAN and LAO, 0.71 N for RIS: of the order of the 1 N per fibre that
+    published face models use (ArtiSynth's point-to-point face muscles default to 1.0 N).
+  The cable's cross-section is that same A = pi r^2, so the cable stress at peak force
+  is sigma_max.
 * eps_c = 0.5: the cable goes slack at full activation after shortening by half (the
   active force-length range of skeletal muscle); so E = sigma_max / eps_c = 0.2 MPa.
 
 Activation stiffening (the paper's Figure 7): bricks within radius r of a fibre get c10
-and c20 multiplied by k(a) = 1 + a (E_c / E_r - 1), linear between the relaxed and the
-contracted Young's modulus of skeletal muscle, E_r = 6.2 kPa and E_c = 110 kPa (Duck,
-Physical Properties of Tissue, 1990): k(1) = 17.7. A brick near two muscles takes the
-larger factor. Radii per muscle, of the order of the muscle's cross-section: 2 mm for
-ZYG and 3 mm for OOP (the paper's Figure 6), and estimates for the others.
+and c20 multiplied by k(a) = 1 + a (E_c / E_0 - 1), linear in activation from the
+tissue's own initial Young's modulus E_0 = 6 c10 = 15 kPa (the paper's E) at rest to the
+contracted Young's modulus of skeletal muscle E_c = 110 kPa (Duck, Physical Properties of
+Tissue, 1990) at a = 1: k(1) = 7.33. (Duck's relaxed-muscle modulus, 6.2 kPa, is below
+the paper's tissue modulus; the law starts from the tissue the model actually has.) A
+brick near two muscles takes the larger factor.
 """
 
+import math
 from dataclasses import dataclass, field
 
 from .anatomy.base import MUSCLE_NAMES
 from .errors import ParameterError
 
-F_MAX_N = 1.0
 SIGMA_MAX_MPA = 0.1
 EPS_CONTRACTION = 0.5
-E_RELAXED_KPA = 6.2
+E_TISSUE_KPA = 15.0          # 6 c10, the paper's E
 E_CONTRACTED_KPA = 110.0
 
 STIFFENING_RADIUS_MM = {"LLSAN": 2.0, "LAO": 2.0, "ZYG": 2.0, "RIS": 1.5, "BUC": 3.0,
                         "DAO": 2.5, "DLI": 2.5, "MENT": 2.5, "OOP": 3.0, "OOM": 2.0}
+
+
+def peak_force(radius_mm, sigma_max=SIGMA_MAX_MPA):
+    """F_max (N) of a fibre of radius r (mm): sigma_max pi r^2."""
+    return sigma_max * math.pi * radius_mm ** 2
+
+
+F_MAX_N = {m: peak_force(r) for m, r in STIFFENING_RADIUS_MM.items()}
 
 
 def _per_muscle(value):
@@ -50,11 +64,11 @@ def _per_muscle(value):
 class MuscleProperties:
     """Per-muscle constants (dicts keyed by MUSCLE_NAMES)."""
 
-    f_max: dict = _per_muscle(F_MAX_N)                  # N per fibre at a = 1
+    f_max: dict = field(default_factory=lambda: dict(F_MAX_N))   # N per fibre at a = 1
     force_scale: dict = _per_muscle(1.0)                # user scale of the active force
     sigma_max: float = SIGMA_MAX_MPA                    # MPa
     eps_contraction: float = EPS_CONTRACTION
-    stiffening_max: float = E_CONTRACTED_KPA / E_RELAXED_KPA
+    stiffening_max: float = E_CONTRACTED_KPA / E_TISSUE_KPA
     stiffening_radius: dict = field(default_factory=lambda: dict(STIFFENING_RADIUS_MM))
 
     def __post_init__(self):

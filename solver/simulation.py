@@ -48,11 +48,15 @@ def _contact_terms(anatomy, scene):
 
 
 class Simulation:
-    """scene: Scene, built-in name or TOML path; overrides: Scene fields to replace;
+    """scene: Scene, built-in name or TOML path; fidelity: a preset name of
+    solver.fidelity (applied before the overrides); overrides: Scene fields to replace;
     loaded_anatomy: an Anatomy already in memory (instead of loading the scene's)."""
 
-    def __init__(self, scene="default", loaded_anatomy=None, **overrides):
+    def __init__(self, scene="default", loaded_anatomy=None, fidelity=None, **overrides):
         scene = resolve_scene(scene)
+        if fidelity is not None:
+            from .fidelity import apply_fidelity
+            scene = apply_fidelity(scene, fidelity)
         self.scene = scene.with_overrides(**overrides) if overrides else scene
         sc = self.scene
         self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half)
