@@ -76,11 +76,16 @@ class Assembly:
         self.data = np.zeros(pattern.nnz) if need_k else None
         self.energy = 0.0
 
-    def add_block(self, block, fe, ke=None):
-        """fe (k, d) into the residual; ke (k, d, d) into the tangent (when needed)."""
-        scatter_vectors(fe, self.pattern.dofs[block], self.residual)
+    def add_block(self, block, fe, ke=None, rows=None):
+        """fe (k, d) into the residual; ke (k, d, d) into the tangent (when needed).
+        rows: (m,) indices of the block's elements that fe, ke (m, ...) belong to (a
+        subset, e.g. the active contact pairs); default all k."""
+        dofs, index = self.pattern.dofs[block], self.pattern.index[block]
+        if rows is not None:
+            dofs, index = dofs[rows], index[rows]
+        scatter_vectors(fe, dofs, self.residual)
         if self.need_k and ke is not None:
-            scatter_matrices(ke, self.pattern.index[block], self.data)
+            scatter_matrices(ke, index, self.data)
 
     def add_diagonal(self, values):
         """values (ndof,) onto the tangent's diagonal."""

@@ -14,9 +14,14 @@ to their targets, so that a step's predictor is the consistent linearization.
 
 Line search: while prescribed DOFs move (du_p != 0) the linearized residual vanishes
 along the whole step, so the step is only shortened (halved) until admissible. Otherwise,
-along du, g(s) = du . r(u + s du). Newton's step s = 1 is kept when
-|g(1)| <= 0.5 |g(0)| and the state is admissible (no det F <= 0); otherwise s is
-found by secant steps safeguarded in (0.05, 1] (at most ``max_ls`` residual evaluations).
+along du, g(s) = du . r(u + s du) (g(0) < 0 for a descent direction). Newton's step
+s = 1 is kept when the state is admissible (no det F <= 0) and |g(1)| <= 0.5 |g(0)|, or
+when g(1) has the sign of g(0) (still descending) and ||r|| did not grow (else s is
+halved until it did not: a contact kink ahead). Else g changed sign: its root is bracketed
+in (0, 1) and found by false position with the Illinois modification (the end that stays
+put twice has its g halved), which converges where plain secant steps cycle, as they did
+on the penalty kinks of lip/lip contact; the first s with |g(s)| <= 0.5 |g(0)| is
+taken, else the best one after max_ls + 4 evaluations.
 An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
 larger of the first two residuals) or that stalls (not halved over ``stall_window``
 iterations, checked from iteration stall_window + 4 on) fails the step, and the caller
@@ -86,33 +91,63 @@ def _admissible_fraction(system, u, du, opts):
     return None
 
 
+def _g(du, r):
+    return None if r is None or not np.all(np.isfinite(r)) else float(du @ r)
+
+
 def _line_search(system, u, du, r0, opts):
-    g0 = du @ r0
+    """Step length s along du: 1 when acceptable, else a root of g(s) = du . r(u + s du)
+    bracketed in (0, 1) by false position (Illinois), else the best s tried."""
+    g0 = float(du @ r0)
+    n0 = float(np.linalg.norm(r0))
     r1 = _trial(system, u, du, 1.0)
-    if r1 is not None and np.all(np.isfinite(r1)) and abs(du @ r1) <= 0.5 * abs(g0):
+    g1 = _g(du, r1)
+    if g1 is not None and abs(g1) <= 0.5 * abs(g0):
         return 1.0
-    s_lo, g_lo = 0.0, g0
-    s, g = 1.0, (du @ r1 if r1 is not None and np.all(np.isfinite(r1)) else None)
-    best = None
-    for _ in range(opts.max_ls):
-        if g is None:
-            s_new = 0.5 * s
-        else:
-            if best is None or abs(g) < best[1]:
-                best = (s, abs(g))
-            if abs(g) <= 0.5 * abs(g0):
+    if g1 is not None and g1 * g0 > 0:  # still descending at s = 1
+        s, r = 1.0, r1
+        for _ in range(opts.max_ls):    # backtrack while the residual grew (a kink)
+            if float(np.linalg.norm(r)) <= n0:
                 return s
-            denom = g - g_lo
-            s_new = s - g * (s - s_lo) / denom if denom != 0 else 0.5 * s
-            s_new = min(max(s_new, 0.05), 1.0) if np.isfinite(s_new) else 0.5 * s
-            if g * g0 > 0:
-                s_lo, g_lo = s, g
-        s = s_new
-        r = _trial(system, u, du, s)
-        g = du @ r if r is not None and np.all(np.isfinite(r)) else None
-    if g is not None and (best is None or abs(g) < best[1]):
-        best = (s, abs(g))
-    return best[0] if best is not None else None
+            s *= 0.5
+            r = _trial(system, u, du, s)
+            if _g(du, r) is None:
+                break
+        return s
+    lo, glo = 0.0, g0
+    hi, ghi = 1.0, g1
+    while ghi is None:                  # inadmissible at s = 1: halve into the admissible
+        hi *= 0.5
+        if hi < 0.5 ** opts.max_ls:
+            return None
+        ghi = _g(du, _trial(system, u, du, hi))
+        if ghi is not None and (abs(ghi) <= 0.5 * abs(g0) or ghi * g0 > 0):
+            return hi
+    best = (hi, abs(ghi))
+    side = 0
+    for _ in range(opts.max_ls + 4):
+        s = hi - ghi * (hi - lo) / (ghi - glo)
+        if not lo < s < hi:
+            s = 0.5 * (lo + hi)
+        g = _g(du, _trial(system, u, du, s))
+        if g is None:                   # inadmissible inside the bracket: shrink from above
+            hi, ghi = s, ghi
+            continue
+        if abs(g) < best[1]:
+            best = (s, abs(g))
+        if abs(g) <= 0.5 * abs(g0):
+            return s
+        if g * g0 > 0:                  # root lies above s
+            lo, glo = s, g
+            if side == -1:
+                ghi *= 0.5              # Illinois: halve the stale end
+            side = -1
+        else:
+            hi, ghi = s, g
+            if side == 1:
+                glo *= 0.5
+            side = 1
+    return best[0]
 
 
 def newton(system, u0, targets, lin, opts):

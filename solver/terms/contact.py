@@ -72,8 +72,11 @@ normal . the triangle's normal < 0, and the slave in front of the triangle's pla
 which keeps the backs and the filled caps of closed lip surfaces out; at most max_pairs
 nearest per slave. Nodes on both surfaces (the joined mouth corners) are no slaves, and a
 slave inside the other lip at rest by more than rest_tolerance is dropped. Each slave
-takes its nearest candidate; penetrations deeper than depth are ignored (a node that came
-in elsewhere than through its candidates). Inactive pairs scatter zeros. On a half model
+takes its nearest candidate; penetrations deeper than depth (0.5 mm, ten times the
+0.05 mm tolerance) are ignored: a node that came in elsewhere than through its candidates,
+or whose nearest candidate feature is not the surface's nearest one, so that the sign of
+(x - c) . N flips at a distance (seen on the generic face under OOP + BUC: a slave at
+1.1 mm jumped from outside to inside, a force jump that stalled Newton). Only the active pairs are scattered. On a half model
 the lip surfaces end on the symmetry plane: their edges there are mirror edges, whose
 pseudo-normals include the mirrored surface, not free edges.
 
@@ -357,7 +360,7 @@ class LipContact(Term, _Report):
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
-                 radius=6.0, max_pairs=12, depth=2.0, rest_tolerance=0.1, onset=0.0,
+                 radius=6.0, max_pairs=12, depth=0.5, rest_tolerance=0.1, onset=0.0,
                  mirror_nodes=None):
         _check(penalty, onset)
         self.name, self.mesh = name, mesh
@@ -445,8 +448,8 @@ class LipContact(Term, _Report):
                                           q["pair_tri"], *nrm.args(), self.depth, self.onset,
                                           asm.need_k, q["fe"], q["ke"], gap, force,
                                           q["active"], q["kept"])
-            asm.add_block(b, q["fe"], q["ke"] if asm.need_k else None)
             act = q["active"][q["active"] >= 0]
+            asm.add_block(b, q["fe"][act], q["ke"][act] if asm.need_k else None, rows=act)
             np.add.at(nodal, q["nodes"][act], -q["fe"][act].reshape(-1, 4, 3))
             gaps.append(gap)
             forces.append(force)
