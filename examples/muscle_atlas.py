@@ -4,7 +4,8 @@ a = 0.5 and 1 on both anatomies, and pictures of the paper's cases (its Figures 
     python examples/muscle_atlas.py [--out docs] [--level paper] [--no-contact]
 
 Static equilibrium, half face (symmetric activations), activation stiffening on, lip/teeth
-and lip/lip contact on (unless --no-contact). The reference face is used where
+contact on (unless --no-contact); no lip/lip contact (static Newton with pressed lips is not
+robust yet: the transient scenes carry it), so an aperture of 0 may mean lips crossing. The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
 """
 
@@ -28,7 +29,7 @@ KEYS = ("lip_aperture", "lip_protrusion", "lip_width")
 def solve(anatomy, activations, contact):
     scene = parse_scene({"scene": {"analysis": "static"},
                          "muscles": {"driven": sorted(activations)},
-                         "effects": {"teeth_contact": contact, "lip_contact": contact}})
+                         "effects": {"teeth_contact": contact, "lip_contact": False}})
     sim = Simulation(scene, loaded_anatomy=anatomy)
     sim.set_activations(activations)
     stats = sim.step(1.0)
@@ -52,7 +53,8 @@ def main(argv=None):
     lines = ["# What each muscle does", "",
              f"Made by `python examples/muscle_atlas.py --level {args.level}"
              f"{' --no-contact' if not contact else ''}`: static equilibrium, half face, "
-             f"stiffening on, contact {'on' if contact else 'off'}. Lip measures in mm "
+             f"stiffening on, lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
+             "(an aperture of 0 may mean crossing lips). Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "
              "displacement).", ""]
     t0 = time.perf_counter()
@@ -78,6 +80,20 @@ def main(argv=None):
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
                          f"{o['lip_width']:.2f} | ![{case}](img/{tag}) |")
         lines.append("")
+    lines += ["## Against the paper", "",
+              "RIS widens the mouth and pulls the corners back; OOP protrudes the lips and "
+              "narrows the aperture; OOP + BUC protrudes less than OOP alone and closes the "
+              "lips further, as in the paper. BUC alone does not: at its peak force "
+              "(100 kPa x pi (3 mm)^2 = 2.83 N per fibre) it pulls the lips back by about as "
+              "much as OOP pushes them forward, where the paper reports little lip motion "
+              "and a cheek pressed on the teeth. In the published fibres BUC runs straight "
+              "from beside the mouth corners to the back of the cheek, so its tension "
+              "retracts the corners and does not press the cheek inwards (a straight cable "
+              "has no inward pull); the paper's BUC cables had their own real-constant set "
+              "(its cross-section), whose value the data does not give. Lowering BUC's "
+              "force scale (scene key muscles.force_scale) shrinks the retraction but not "
+              "below a third of OOP's effect down to 0.35 N per fibre (measured on the "
+              "reference face, static)."]
     (out / "muscles.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'muscles.md'} in {time.perf_counter() - t0:.0f} s")
 

@@ -3,7 +3,7 @@ in the OOP region every 0.01 s, its rate and its average rate, beside the paper'
 
     python examples/table4.py [--level coarse] [--out docs] [--no-reference]
 
-Runs the built-in scene table4_oop (OOP stepped to a = 1 at t = 0, backward Euler with
+Runs the built-in scene table4_oop (OOP ramped from a = 0 to 1 over 0.1 s, backward Euler with
 adaptive substeps, Rayleigh damping alpha = 40, beta = 0.03, stiffening, lip and teeth
 contact as the scene says) on the generic face at --level and on the reference face where
 ../shared/data/reference-face exists, half face. Strain: the most compressive logarithmic
@@ -87,7 +87,7 @@ def main(argv=None):
     effects = Simulation("table4_oop", loaded_anatomy=next(iter(faces.values()))).scene.effects
     cmd = "python examples/table4.py" + (f" --level {args.level}" if args.level != "coarse" else "")
     lines = ["# The paper's Table 4: OOP over 0.1 s", "",
-             f"Made by `{cmd}` (scene `table4_oop`: OOP stepped to a = 1 at t = 0). Strain: "
+             f"Made by `{cmd}` (scene `table4_oop`: OOP ramped from a = 0 to 1 over 0.1 s). Strain: "
              "the most compressive logarithmic principal strain over the OOP region's bricks.",
              ""]
     all_rows = []

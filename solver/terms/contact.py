@@ -51,7 +51,8 @@ search). An augmented-Lagrangian update in commit() would come once per load ste
 rarely to converge the multipliers, and the penetrations above are already 2.5 to 15 times
 below the tolerance.
 
-RigidContact: node-on-rigid-surface (lips and cheeks on the teeth). The sheet (an open
+RigidContact: node-on-rigid-surface (lips and cheeks on the teeth: on the reference face
+60 lip and 16 cheek nodes per jaw, half face). The sheet (an open
 surface, any triangle orientation) is oriented towards the tissue: by the side on which
 most slaves' tissue lies at rest (the mean centroid of each slave's bricks, which is off
 the surface even where the slave touches it); slave nodes behind the oriented sheet at
@@ -458,14 +459,13 @@ class LipContact(Term, _Report):
 
 def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, **options):
     """The contact terms of an Anatomy: a RigidContact per rigid surface (named
-    '<surface>_contact'; slaves: the movable nodes of the lip contact surfaces within
-    teeth_distance (mm) of it at rest) when teeth, a LipContact when lips (mirrored on the
+    '<surface>_contact'; slaves: the movable nodes of the mesh boundary within
+    teeth_distance (mm) of it at rest: the inner lip and cheek surfaces) when teeth, a LipContact when lips (mirrored on the
     'midsagittal' nodes of a half anatomy); options go to every term (penalty, onset)."""
     mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
     terms = []
     if teeth:
-        nodes = np.setdiff1d(np.unique(np.concatenate([f.ravel() for f in surfaces.values()])),
-                             mesh.node_sets.get("fixed", []))
+        nodes = np.setdiff1d(np.unique(mesh.boundary_faces()), mesh.node_sets.get("fixed", []))
         for name, surface in anatomy.rigid_surfaces.items():
             terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
                                       surface, name=f"{name}_contact", **options))
