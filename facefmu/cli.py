@@ -3,7 +3,8 @@
     facefmu version
     facefmu anatomy SPEC [--level coarse|medium|paper|fine] [--half]
                          [--export FILE.vtu|FILE.xdmf] [--png FILE.png]
-    facefmu run SCENE [--out DIR] [--anatomy SPEC] [--level L] [--full] [--vtu]
+    facefmu run SCENE [--out DIR] [--fidelity fast|balanced|accurate] [--anatomy SPEC]
+                      [--level L] [--full] [--vtu]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
 print one line to stderr naming the culprit and exit with status 2. A subcommand is an
@@ -16,6 +17,7 @@ import sys
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.anatomy.load import LEVELS, load_anatomy
 from solver.errors import FaceFMUError
+from solver.fidelity import FIDELITIES
 
 from . import run_scene
 
@@ -124,12 +126,30 @@ def _landmark_table(anatomy):
     return out
 
 
+# ------------------------------------------------------------------------------- run
+
+def _run_arguments(parser):
+    run_scene.add_arguments(parser)
+    parser.add_argument("--fidelity", choices=FIDELITIES, metavar="NAME",
+                        help=f"a fidelity preset ({', '.join(FIDELITIES)}) for the level, "
+                             "half face and solver tolerances; --level and --full win "
+                             "over it (default: the scene's own settings)")
+
+
+def _run(args):
+    if args.fidelity:
+        from solver.fidelity import apply_fidelity
+        from solver.simulation import resolve_scene
+        args.scene = apply_fidelity(resolve_scene(args.scene), args.fidelity)
+    return run_scene.run(args)
+
+
 COMMANDS = {
     "version": ("print the version", _version_arguments, _version),
     "anatomy": ("summarise a face anatomy; export it or draw it", _anatomy_arguments,
                 _anatomy),
     "run": ("run a scene standalone: CSV, PNG and optional VTU frames",
-            run_scene.add_arguments, run_scene.run),
+            _run_arguments, _run),
 }
 
 

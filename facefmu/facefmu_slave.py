@@ -8,10 +8,14 @@ What a master sees:
   good point, and the next valid doStep works.
 * doStep whose solver cannot converge after every cutback: the same (fmi2Discard), logged
   with the solver's reason.
-* A parameter that cannot be used (unknown scene, missing anatomy folder, bad level) is
-  logged as an error at exitInitializationMode, which then fails with fmi2Fatal (pythonfmu
-  turns exceptions into fmi2Fatal); setting a parameter after initialization is logged as
-  a warning and ignored.
+* A parameter that cannot be used (unknown scene or fidelity, missing anatomy folder, bad
+  level) is logged as an error at exitInitializationMode, which then fails with fmi2Fatal
+  (pythonfmu turns exceptions into fmi2Fatal); setting a parameter after initialization is
+  logged as a warning and ignored.
+* fidelity: "" (default) runs the scene with the parameters level, half_face, tolerance and
+  max_substep; a preset of solver.fidelity (fast, balanced, accurate) sets those itself
+  (and the Newton tolerance and element formulation): the four parameters are then not
+  used, with a warning for each one set away from its default.
 Outputs change only in doStep (no direct feedthrough).
 """
 
@@ -24,6 +28,7 @@ from pythonfmu.enums import Fmi2Status
 from pythonfmu.default_experiment import DefaultExperiment
 
 from solver.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from solver.fidelity import FIDELITIES, fidelity_overrides
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
@@ -35,7 +40,11 @@ OUTPUT_DESCRIPTIONS = {
     "upper_lip_protrusion": "forward displacement of the upper lip's front point from rest",
     "lower_lip_protrusion": "forward displacement of the lower lip's front point from rest",
 }
-PARAMETERS = ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep")
+PARAMETERS = ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep",
+              "fidelity")
+# parameters a fidelity preset decides, with their defaults
+PRESET_PARAMETERS = {"level": "coarse", "half_face": True, "tolerance": 1e-3,
+                     "max_substep": 5e-3}
 
 
 class FaceFMU(Fmi2Slave):
@@ -48,8 +57,9 @@ class FaceFMU(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.anatomy, self.level, self.scene = "generic", "coarse", "default"
-        self.half_face, self.tolerance, self.max_substep = True, 1e-3, 5e-3
+        self.anatomy, self.scene, self.fidelity = "generic", "default", ""
+        for name, value in PRESET_PARAMETERS.items():
+            setattr(self, name, value)
         for m in MUSCLE_NAMES:
             setattr(self, m, 0.0)
             self.register_variable(Real(m, causality=Fmi2Causality.input,
@@ -79,6 +89,9 @@ class FaceFMU(Fmi2Slave):
         self.register_variable(Real("tolerance", description="local error tolerance of a "
                                     "substep", **fixed))
         self.register_variable(Real("max_substep", description="largest substep", **fixed))
+        self.register_variable(String("fidelity", description="'' (the scene with level, "
+                                      "half_face, tolerance, max_substep) or a preset: "
+                                      + ", ".join(FIDELITIES), **fixed))
         self.sim = None
         self.time = 0.0
         self._used = None
@@ -94,7 +107,8 @@ class FaceFMU(Fmi2Slave):
         from solver.simulation import Simulation
         self._used = {p: getattr(self, p) for p in PARAMETERS}
         try:
-            self.sim = Simulation(self.scene, **self._overrides())
+            self.sim = Simulation(self.scene, fidelity=self.fidelity or None,
+                                  **self._overrides())
         except Exception as exc:
             self.log(f"cannot build the model: {exc}", Fmi2Status.error)
             raise
@@ -106,9 +120,16 @@ class FaceFMU(Fmi2Slave):
             self.sim.release()
 
     def _overrides(self):
-        out = {"anatomy": str(self.anatomy), "level": str(self.level),
-               "half": bool(self.half_face), "substep_tol": float(self.tolerance),
-               "max_substep": float(self.max_substep)}
+        out = {"anatomy": str(self.anatomy)}
+        if not self.fidelity:
+            out.update(level=str(self.level), half=bool(self.half_face),
+                       substep_tol=float(self.tolerance), max_substep=float(self.max_substep))
+        else:
+            fidelity_overrides(self.fidelity)      # ParameterError naming it and the allowed
+            for name, default in PRESET_PARAMETERS.items():
+                if getattr(self, name) != default:
+                    self.log(f"parameter {name} = {getattr(self, name)!r} not used: fidelity "
+                             f"{self.fidelity!r} sets it", Fmi2Status.warning)
         from solver.simulation import resolve_scene
         if resolve_scene(self.scene).linear_solver == "auto":
             # MKL PARDISO loaded inside an FMU made fmpy's process abort at exit (heap

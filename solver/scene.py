@@ -9,6 +9,9 @@ recorded outputs and, for standalone runs, activation schedules.
     description = "lip rounding and protrusion for /u/"
     analysis = "transient"          # "static" | "transient"
     duration = 0.3                  # s (standalone runs)
+    fidelity = "balanced"           # optional: a preset of solver.fidelity (fast |
+                                    # balanced | accurate) for the level, half face and
+                                    # solver tolerances; keys written in this file win
 
     [anatomy]
     source = "generic"              # "generic" or an ANSYS face folder
@@ -75,6 +78,7 @@ import numpy as np
 
 from .anatomy.base import MUSCLE_NAMES
 from .errors import FaceFMUError
+from .fidelity import FIDELITIES, fidelity_overrides
 
 ANALYSES = ("static", "transient")
 LEVELS = ("coarse", "medium", "paper", "fine")
@@ -224,7 +228,8 @@ def _outputs(v):
 SECTIONS = {
     "scene": {"name": ("name", _string), "description": ("description", _string),
               "analysis": ("analysis", _choice(ANALYSES)),
-              "duration": ("duration", _number(0.0, strict_lo=True))},
+              "duration": ("duration", _number(0.0, strict_lo=True)),
+              "fidelity": ("fidelity", _choice(FIDELITIES))},
     "anatomy": {"source": ("anatomy", _string), "level": ("level", _choice(LEVELS)),
                 "half": ("half", _bool)},
     "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales)},
@@ -302,6 +307,8 @@ def parse_scene(data, source="<scene>"):
                 values[spec[0]] = spec[1](v)
             except ValueError as exc:
                 raise SceneError(source, f"{section}.{key}", str(exc)) from None
+    if "fidelity" in values:                       # the preset under the file's own keys
+        values = fidelity_overrides(values.pop("fidelity")) | values
     scene = Scene(**values)
     items = data.get("schedule", [])
     if not isinstance(items, list):

@@ -1,0 +1,437 @@
+"""What accuracy costs in time: lip-output error against run time over the solver's knobs.
+
+    python benchmarks/accuracy_vs_time.py [--quick] [--duration S] [--out DIR]
+                                          [--scheduler ADDRESS] [--workers 2]
+                                          [--only LABEL,LABEL] [--cost wall|cpu]
+                                          [--replot DIR]
+
+Scene (`gesture`): transient, the generic face, teeth and lip contact on. LLSAN and DLI
+open the lips (0 to 0.8 over 0-0.1 s), then OOP and RIS round and retract them (OOP 0 to
+0.6, RIS 0 to 0.5 over 0.1-0.2 s), held to 0.3 s; lip aperture and protrusion recorded
+every 10 ms. The lips stay apart (aperture 0.4 mm at rest, then opening), so lip/lip
+contact is built and searched but never closes; the lips press on the teeth. (A closing
+gesture would clamp the aperture at 0, which hides its error.)
+
+Runs (each an independent task of benchmarks.sweep; the default sweep):
+* level study at TIGHT tolerances: coarse, medium, paper and fine half faces; the fine
+  one is the reference run of every generic-face run;
+* each level at the scene defaults (DEFAULT), and coarse, medium, paper at LOOSE ones;
+* LOOSE one part at a time on the medium half face (substep_tol 1e-2 mm; max_substep
+  1e-2 s, the record interval, which bounds the substeps anyway; newton_rtol 1e-4); full
+  face, formulation "full" and stiffening off on the coarse and medium half faces;
+* the fidelity presets of solver.fidelity (a run is added for a preset no row matches);
+* the reference (ANSYS) face at its own resolution (../shared/data/reference-face or
+  $FACEFMU_REFERENCE_FACE; skipped where absent): at DEFAULT, LOOSE and full face against
+  itself at TIGHT, since it has no finer mesh (its errors are time-stepping, Newton and
+  half-face errors only).
+
+Error of a run: the largest difference over the recorded times (mm) between the run and its
+reference in lip aperture and in protrusion; err_mm is the larger of the two.
+
+Cost: wall time of Simulation.run() in the task (build time apart) on one core next to one
+other task; cpu_s, the worker's CPU time over it, is the wall time on an idle core (`--cost
+cpu` takes it for the front and plot where other jobs load the machine); peak memory of the
+task (VmHWM reset per task, see benchmarks/sweep.py); DOF; real-time factor rtf = wall time
+/ simulated time (1 = real time).
+
+Level study: the generic-face runs that differ from the reference run in their level
+alone; h = (mesh volume / bricks)^(1/3) (mm); the rate p of err ~ h^p fitted by least
+squares in log-log over them (the reference's own error is left out, so p is optimistic
+as the levels near it).
+
+--quick: the sweep shrunk to run in under 3 minutes: 0.05 s of the gesture (the opening),
+the level study at the DEFAULT tolerances against the paper half face (their time-stepping
+and Newton error, 0.004 mm on the fine face against TIGHT in the default sweep over 0.05 s,
+is under a tenth of the smallest error measured here), LOOSE runs, and full face, formulation "full" and stiffening off on the coarse face
+only; no fine level, no reference face. Exits with status 1 unless the error falls as the
+level rises (coarse > medium).
+
+Output in DIR (default out/accuracy_vs_time[_quick]): accuracy_vs_time.csv (a row per run),
+records.json (each run's recorded outputs over time, by label), pareto.png (error against
+time, log scales, the front of the generic-face runs drawn and the presets labelled); the
+table, the fitted rate and the presets' figures are printed.
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):                     # run as a script: the repository root
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.sweep import Sweep  # noqa: E402
+from benchmarks.table import report  # noqa: E402
+
+REFERENCE_FACE = Path(os.environ.get(
+    "FACEFMU_REFERENCE_FACE",
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
+LEVELS = ("coarse", "medium", "paper", "fine")
+KNOBS = ("anatomy", "level", "half", "substep_tol", "max_substep", "newton_rtol",
+         "formulation", "stiffening")
+# the Scene defaults, written out so that every row of the table says what it ran
+DEFAULT = dict(anatomy="generic", level="paper", half=True, substep_tol=1e-3,
+               max_substep=5e-3, newton_rtol=1e-6, formulation="mean_dilatation",
+               stiffening=True)
+TIGHT = dict(substep_tol=2.5e-4, max_substep=2.5e-3, newton_rtol=1e-8)
+LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
+GESTURE_DURATION = 0.3     # s
+QUICK_DURATION = 0.05      # s
+
+
+def _ramp(muscle, start, end, to):
+    return {"muscle": muscle, "kind": "ramp", "start": start, "end": end, "to": to}
+
+
+def gesture(duration=GESTURE_DURATION, contact=True):
+    """The benchmark scene, as a dict for solver.scene.parse_scene."""
+    return {"scene": {"name": "open_round", "analysis": "transient", "duration": duration,
+                      "description": "LLSAN + DLI open the lips, then OOP + RIS"},
+            "muscles": {"driven": ["LLSAN", "DLI", "OOP", "RIS"]},
+            "effects": {"lip_contact": contact, "teeth_contact": contact},
+            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.01},
+            "schedule": [_ramp("LLSAN", 0.0, 0.1, 0.8), _ramp("DLI", 0.0, 0.1, 0.8),
+                         _ramp("OOP", 0.1, 0.2, 0.6), _ramp("RIS", 0.1, 0.2, 0.5)]}
+
+
+def spec(label, ref, **knobs):
+    """A run: its label, the label of its reference run (None: it is one), every KNOB."""
+    return {"label": label, "ref": ref, **DEFAULT, **knobs}
+
+
+def sweep_specs(quick=False, reference_face=None):
+    """The runs of the sweep (quick or default), the longest first (tasks start in order)."""
+    if quick:       # level study at the DEFAULT tolerances, paper the reference
+        levels, ref = LEVELS[:3], "paper"
+        runs = [spec(lv, None if lv == "paper" else ref, level=lv) for lv in levels]
+    else:           # level study at TIGHT tolerances, fine the reference
+        levels, ref = LEVELS, "fine tight"
+        runs = [spec(f"{lv} tight", None if lv == "fine" else ref, level=lv, **TIGHT)
+                for lv in levels]
+        runs += [spec(lv, ref, level=lv) for lv in levels]
+    runs += [spec(f"{lv} loose", ref, level=lv, **LOOSE) for lv in levels[:-1]]
+    knob_levels = ("coarse",) if quick else ("coarse", "medium")
+    for lv in knob_levels:
+        runs += [spec(f"{lv} full face", ref, level=lv, half=False),
+                 spec(f"{lv} formulation full", ref, level=lv, formulation="full"),
+                 spec(f"{lv} no stiffening", ref, level=lv, stiffening=False)]
+    if not quick:
+        runs += [spec("medium substep_tol 1e-2", ref, level="medium", substep_tol=1e-2),
+                 spec("medium max_substep 1e-2", ref, level="medium", max_substep=1e-2),
+                 spec("medium newton_rtol 1e-4", ref, level="medium", newton_rtol=1e-4)]
+    runs += preset_specs(runs, ref)
+    if not quick and reference_face is not None and (reference_face / "newface.node").is_file():
+        face, rref = str(reference_face.resolve()), "reference face tight"
+        runs += [spec(rref, None, anatomy=face, **TIGHT),
+                 spec("reference face", rref, anatomy=face),
+                 spec("reference face loose", rref, anatomy=face, **LOOSE),
+                 spec("reference face full", rref, anatomy=face, half=False)]
+    return sorted(runs, key=_cost_guess, reverse=True)
+
+
+def select(specs, labels):
+    """The specs named in labels and their reference runs; ValueError naming unknown ones."""
+    by_label = {s["label"]: s for s in specs}
+    unknown = [x for x in labels if x not in by_label]
+    if unknown:
+        raise ValueError(f"no run {unknown[0]!r}; runs: {', '.join(by_label)}")
+    keep = set(labels) | {by_label[x]["ref"] for x in labels}
+    return [s for s in specs if s["label"] in keep]
+
+
+def preset_specs(runs, ref):
+    """Runs of the fidelity presets that no run in runs matches (their knobs, DEFAULT
+    elsewhere); none where a preset asks for a level finer than the reference's."""
+    from solver.fidelity import FIDELITIES, PRESETS
+
+    out = []
+    ref_level = next(r["level"] for r in runs if r["label"] == ref)
+    for name in FIDELITIES:
+        knobs = {**DEFAULT, **PRESETS[name]}
+        if LEVELS.index(knobs["level"]) > LEVELS.index(ref_level):
+            continue
+        if not any(all(r[k] == knobs[k] for k in KNOBS) for r in runs):
+            out.append(spec(f"preset {name}", ref, **knobs))
+    return out
+
+
+def _cost_guess(s):
+    """A rough relative cost of a run, to start the long ones first."""
+    size = 12.0 if s["anatomy"] != "generic" else \
+        {"coarse": 1, "medium": 2.5, "paper": 12, "fine": 150}[s["level"]]
+    return size * (1 if s["half"] else 2.5) * (1e-3 / s["substep_tol"]) ** 0.5
+
+
+def run_specs(sweep, specs, duration, progress=True):
+    """Run specs over `duration` s of the gesture on a benchmarks.sweep.Sweep; the sweep's
+    results (see benchmarks.sweep.run_task), in the order of specs."""
+    tasks = [{k: v for k, v in s.items() if k != "ref"} | {"duration": duration}
+             for s in specs]
+    return sweep.run(tasks, gesture(duration), progress)
+
+
+def output_errors(rows, ref_rows):
+    """(aperture, protrusion): the largest |run - reference| over the record times (mm)."""
+    if len(rows) != len(ref_rows) or any(abs(a["time"] - b["time"]) > 1e-9
+                                         for a, b in zip(rows, ref_rows)):
+        raise ValueError("the runs do not share their record times")
+    return tuple(max(abs(a[k] - b[k]) for a, b in zip(rows, ref_rows))
+                 for k in ("lip_aperture", "lip_protrusion"))
+
+
+def evaluate(specs, results):
+    """Table rows (dicts) from run specs and their sweep results (same order)."""
+    by_label = {s["label"]: r for s, r in zip(specs, results)}
+    table = []
+    for s, r in zip(specs, results):
+        row = {k: s[k] for k in ("label", *KNOBS)}
+        if s["anatomy"] != "generic":
+            row.update(anatomy="reference", level="-")
+        row["reference"] = s["ref"] or "-"
+        row["error"] = r["error"]
+        if not r["error"]:
+            row.update({k: r[k] for k in ("ndof", "wall_s", "cpu_s", "rtf", "peak_mb")})
+            row["h_mm"] = (r["volume_mm3"] / r["bricks"]) ** (1.0 / 3.0)
+            ref = by_label[s["ref"]] if s["ref"] else None
+            if ref is not None and ref["error"]:
+                row["error"] = f"its reference failed: {ref['error']}"
+            elif ref is not None:
+                ea, ep = output_errors(r["rows"], ref["rows"])
+                row.update(err_aperture_mm=ea, err_protrusion_mm=ep, err_mm=max(ea, ep))
+        table.append(row)
+    return table
+
+
+def pareto_mask(cost, err):
+    """(n,) bool: the points that no other point beats in both cost and error."""
+    cost, err = np.asarray(cost, float), np.asarray(err, float)
+    return np.array([not np.any((cost <= c) & (err <= e) & ((cost < c) | (err < e)))
+                     for c, e in zip(cost, err)])
+
+
+def mark_front(table, cost="wall_s"):
+    """Set row["pareto"] on the generic-face rows with an error; return those rows."""
+    rows = [r for r in table if r["anatomy"] == "generic" and "err_mm" in r]
+    for r, on in zip(rows, pareto_mask([r[cost] for r in rows], [r["err_mm"] for r in rows])):
+        r["pareto"] = bool(on)
+    return rows
+
+
+def mark_presets(table):
+    """Set row["preset"] on the generic-face rows whose knobs are a fidelity preset's."""
+    from solver.fidelity import FIDELITIES, PRESETS
+
+    for name in FIDELITIES:
+        knobs = {**DEFAULT, **PRESETS[name]}
+        for r in table:
+            if r["anatomy"] == "generic" and all(r[k] == knobs[k] for k in KNOBS):
+                r["preset"] = name
+
+
+def fit_rate(h, err):
+    """(p, c) of the least-squares fit log err = log c + p log h."""
+    p, logc = np.polyfit(np.log(h), np.log(err), 1)
+    return float(p), float(math.exp(logc))
+
+
+def level_study(table):
+    """The rows of the level study: the generic-face runs that differ from the reference
+    run of the generic face in their level alone, coarse first; the fitted rates {error
+    column: p}; whether err_mm falls strictly as the level rises."""
+    ref = next((r for r in table if r["anatomy"] == "generic" and r["reference"] == "-"),
+               None)
+    if ref is None:
+        return [], {}, False
+    same = [k for k in KNOBS if k != "level"]
+    rows = sorted((r for r in table if r["reference"] == ref["label"] and "err_mm" in r
+                   and all(r[k] == ref[k] for k in same)),
+                  key=lambda r: LEVELS.index(r["level"]))
+    rates = {}
+    if len(rows) >= 2:
+        for k in ("err_aperture_mm", "err_protrusion_mm", "err_mm"):
+            if all(r[k] > 0 for r in rows):
+                rates[k] = fit_rate([r["h_mm"] for r in rows], [r[k] for r in rows])[0]
+    falls = len(rows) >= 2 and all(a["err_mm"] > b["err_mm"] for a, b in zip(rows, rows[1:]))
+    return rows, rates, falls
+
+
+MARKERS = {"tight": "D", "default": "o", "loose": "v", "one loose knob": "P",
+           "full face": "s", "formulation full": "X", "no stiffening": "^"}
+COLOURS = {"coarse": "tab:blue", "medium": "tab:orange", "paper": "tab:green",
+           "fine": "tab:red", "-": "tab:purple"}
+
+
+def family(r):
+    """What a run changes: a key of MARKERS."""
+    if not r["half"]:
+        return "full face"
+    if r["formulation"] != DEFAULT["formulation"]:
+        return "formulation full"
+    if not r["stiffening"]:
+        return "no stiffening"
+    for name, tol in (("tight", TIGHT), ("loose", LOOSE),
+                      ("default", {k: DEFAULT[k] for k in TIGHT})):
+        if all(r[k] == v for k, v in tol.items()):
+            return name
+    return "one loose knob"
+
+
+def plot(table, path, title, cost="wall_s"):
+    """Error against cost, log scales: colour the level (purple: the reference face),
+    marker what the run changes; the front drawn and labelled, the presets named, the
+    reference runs (error 0) as dashed lines."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in table if r.get("err_mm", 0) > 0]
+    fig, ax = plt.subplots(figsize=(9, 6))
+    for r in ok:
+        ax.scatter(r[cost], r["err_mm"], color=COLOURS[r["level"]], s=45, zorder=3,
+                   marker=MARKERS[family(r)], edgecolor="k" if r.get("pareto") else "none")
+        if r.get("pareto") or r["anatomy"] != "generic":
+            ax.annotate(r["label"], (r[cost], r["err_mm"]), fontsize=7, xytext=(5, 3),
+                        textcoords="offset points")
+        if r.get("preset"):
+            ax.annotate(r["preset"].upper(), (r[cost], r["err_mm"]), fontsize=10,
+                        weight="bold", xytext=(-12, -16), textcoords="offset points")
+    front = sorted((r for r in ok if r.get("pareto")), key=lambda r: r[cost])
+    ax.step([r[cost] for r in front], [r["err_mm"] for r in front], where="post",
+            color="k", lw=1.2, label="Pareto front (generic face)")
+    for r in table:                                # reference runs: error 0 by definition
+        if r["reference"] == "-" and not r["error"]:
+            ax.axvline(r[cost], color=COLOURS[r["level"]], ls="--", lw=1)
+            ax.annotate(f"{r['label']} (reference)", (r[cost], 0.02), rotation=90,
+                        xycoords=("data", "axes fraction"), fontsize=7, xytext=(-9, 0),
+                        textcoords="offset points")
+    for lv in (*LEVELS, "-"):
+        if any(r["level"] == lv for r in ok):
+            ax.scatter([], [], color=COLOURS[lv], marker="o",
+                       label=lv if lv != "-" else "reference face (against itself)")
+    for name, marker in MARKERS.items():
+        if any(family(r) == name for r in ok):
+            ax.scatter([], [], color="grey", marker=marker, label=name)
+    ax.set(xscale="log", yscale="log", title=title,
+           xlabel=("wall" if cost == "wall_s" else "CPU") + " time of the run (s, one core)",
+           ylabel="max error in lip aperture or protrusion (mm)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+COLUMNS = ["label", "level", "half", "substep_tol", "max_substep", "newton_rtol",
+           "formulation", "stiffening", "ndof", "h_mm", "wall_s", "cpu_s", "rtf", "peak_mb",
+           "err_aperture_mm", "err_protrusion_mm", "err_mm", "pareto", "preset",
+           "reference", "anatomy", "error"]
+
+
+def read_table(path):
+    """The table of an earlier run from its accuracy_vs_time.csv (numbers and flags typed,
+    empty cells left out)."""
+    import csv
+
+    table = []
+    with open(path, newline="") as fh:
+        for raw in csv.DictReader(fh):
+            row = {}
+            for k, v in raw.items():
+                if v == "":
+                    continue
+                if k in ("half", "stiffening", "pareto"):
+                    v = v == "True"
+                elif k == "ndof":
+                    v = int(float(v))
+                elif k not in ("label", "level", "formulation", "preset", "reference",
+                               "anatomy", "error"):
+                    v = float(v)
+                row[k] = v
+            row.setdefault("error", "")
+            table.append(row)
+    return table
+
+
+def summary(table, out, title, cost="wall_s", quick=False):
+    """Mark the front and the presets, print and save the table, the plot, the level
+    study and the presets' figures; whether the error falls as the level rises."""
+    mark_front(table, cost)
+    mark_presets(table)
+    report(table, COLUMNS, out / "accuracy_vs_time.csv")
+    plot(table, out / "pareto.png", title, cost)
+    rows, rates, falls = level_study(table)
+    print(f"\nlevel study (against {rows[0]['reference'] if rows else '-'}): "
+          + ", ".join(f"{r['level']} h {r['h_mm']:.2f} mm err {r['err_mm']:.3g} mm"
+                      for r in rows))
+    print("fitted rate p in err ~ h^p: "
+          + (", ".join(f"{k} {p:.2f}" for k, p in rates.items()) or "too few levels"))
+    print(f"error falls as the level rises: {'yes' if falls else 'NO'}")
+    for r in table:
+        if r.get("preset") and not r["error"]:
+            error = (f"error aperture {r['err_aperture_mm']:.3g} mm, protrusion "
+                     f"{r['err_protrusion_mm']:.3g} mm" if "err_mm" in r else
+                     "the reference run: error not measured")
+            print(f"preset {r['preset']}: '{r['label']}', {error}, real-time factor "
+                  f"{r['rtf']:.0f} (wall), {r['rtf'] * r['cpu_s'] / r['wall_s']:.0f} (CPU)"
+                  + ("" if r.get("pareto", True) else ", NOT on the Pareto front"))
+    failed = [r["label"] for r in table if r["error"]]
+    if failed:
+        print(f"failed runs: {failed}")
+    print(f"wrote {out / 'accuracy_vs_time.csv'} and {out / 'pareto.png'}")
+    return falls
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true",
+                    help=f"coarse and medium against paper over {QUICK_DURATION} s")
+    ap.add_argument("--duration", type=float,
+                    help=f"s of the gesture (default {GESTURE_DURATION}, quick "
+                         f"{QUICK_DURATION})")
+    ap.add_argument("--out", type=Path, help="output folder")
+    ap.add_argument("--scheduler", help="address of a running dask scheduler "
+                                        "(default: a LocalCluster on this machine)")
+    ap.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes")
+    ap.add_argument("--only", help="comma-separated run labels: run these and their "
+                                   "reference runs alone")
+    ap.add_argument("--cost", choices=("wall", "cpu"), default="wall",
+                    help="time of the front and plot: wall_s, or cpu_s (the worker's CPU "
+                         "time, the wall time on an idle core)")
+    ap.add_argument("--replot", type=Path, metavar="DIR",
+                    help="no runs: the table, front and plot again from DIR's "
+                         "accuracy_vs_time.csv (for instance with another --cost)")
+    args = ap.parse_args(argv)
+    cost = f"{args.cost}_s"
+    if args.replot:
+        table = read_table(args.replot / "accuracy_vs_time.csv")
+        duration = next(r["wall_s"] / r["rtf"] for r in table if "rtf" in r)
+        falls = summary(table, args.replot, f"gesture over {duration:.3g} s: error against "
+                        f"{args.cost} time" + (" (--quick)" if args.quick else ""), cost)
+        return 0 if falls or not args.quick else 1
+    duration = args.duration or (QUICK_DURATION if args.quick else GESTURE_DURATION)
+    out = args.out or Path("out") / ("accuracy_vs_time" + ("_quick" if args.quick else ""))
+    out.mkdir(parents=True, exist_ok=True)
+    if not args.quick and not (REFERENCE_FACE / "newface.node").is_file():
+        print(f"reference face not found in {REFERENCE_FACE}: its runs are skipped")
+    specs = sweep_specs(args.quick, REFERENCE_FACE)
+    if args.only:
+        try:
+            specs = select(specs, [x.strip() for x in args.only.split(",")])
+        except ValueError as exc:
+            ap.error(str(exc))
+    with Sweep(args.scheduler, n_workers=args.workers) as sweep:
+        print(f"{len(specs)} runs of {duration} s of the gesture on "
+              f"{len(sweep.workers)} workers")
+        results = run_specs(sweep, specs, duration)
+    with open(out / "records.json", "w") as fh:      # every run's outputs over time
+        json.dump({r["label"]: r.get("rows", []) for r in results}, fh)
+    falls = summary(evaluate(specs, results), out, f"gesture over {duration} s: error "
+                    f"against {args.cost} time" + (" (--quick)" if args.quick else ""), cost)
+    return 0 if falls or not args.quick else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,277 @@
+"""Fidelity presets (API, scene files, command line, FMU), the dask sweep runner and the
+accuracy benchmark's level check (the check of `accuracy_vs_time.py --quick`).
+
+The sweep tests share one LocalCluster (two worker processes) for the module.
+"""
+
+import json
+import subprocess
+import sys
+import textwrap
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+
+from solver.errors import ParameterError
+from solver.fidelity import FIDELITIES, PRESETS, apply_fidelity
+from solver.scene import LEVELS, Scene, SceneError, parse_scene
+from solver.simulation import Simulation
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))                    # benchmarks/ is not installed
+
+pytest.importorskip("dask.distributed")
+from benchmarks import accuracy_vs_time as avt  # noqa: E402
+from benchmarks.sweep import Sweep  # noqa: E402
+
+TINY = {"level": "coarse", "half": True, "duration": 0.02, "interval": 0.01}
+
+
+# ------------------------------------------------------------------------ presets
+
+def test_presets_set_only_numerical_scene_fields_and_leave_the_model():
+    names = {f.name for f in fields(Scene)}
+    base = Scene(name="x", driven=("OOP",), duration=0.2, stiffening=False,
+                 teeth_contact=True)
+    for name in FIDELITIES:
+        assert set(PRESETS[name]) <= names - {"stiffening", "lip_contact", "teeth_contact",
+                                              "driven", "anatomy", "analysis"}
+        scene = apply_fidelity(base, name)
+        assert all(getattr(scene, k) == v for k, v in PRESETS[name].items())
+        assert (scene.name, scene.driven, scene.duration, scene.stiffening,
+                scene.teeth_contact) == ("x", ("OOP",), 0.2, False, True)
+    assert base.level == "coarse" and base.substep_tol == 1e-3     # base unchanged
+
+
+def test_presets_rise_in_level_and_do_not_loosen_tolerances_in_order():
+    levels = [LEVELS.index(PRESETS[n]["level"]) for n in FIDELITIES]
+    assert levels == sorted(levels) and len(set(levels)) == len(levels)
+    for key in ("substep_tol", "max_substep", "newton_rtol"):
+        values = [PRESETS[n][key] for n in FIDELITIES]
+        assert values == sorted(values, reverse=True), key
+
+
+def test_unknown_fidelity_is_refused_naming_it_and_the_allowed():
+    with pytest.raises(ParameterError) as info:
+        Simulation(Scene(), fidelity="ultra")
+    assert "'ultra'" in str(info.value)
+    assert all(n in str(info.value) for n in FIDELITIES)
+
+
+def test_simulation_applies_the_preset_under_its_overrides():
+    sim = Simulation(Scene(duration=0.01), fidelity="balanced", newton_rtol=1e-7)
+    assert sim.scene.level == "medium" and sim.scene.substep_tol == PRESETS["balanced"][
+        "substep_tol"]
+    assert sim.scene.newton_rtol == 1e-7                          # the override wins
+    assert sim.face.model.newton_options.rtol == 1e-7
+    assert sim.anatomy.half and sim.anatomy.mesh.n_bricks == 1449  # medium half face
+
+
+def test_scene_file_fidelity_key_gives_defaults_that_its_own_keys_override():
+    scene = parse_scene({"scene": {"fidelity": "accurate"}})
+    assert all(getattr(scene, k) == v for k, v in PRESETS["accurate"].items())
+    scene = parse_scene({"scene": {"fidelity": "accurate"}, "anatomy": {"level": "coarse"},
+                         "solver": {"newton_rtol": 1e-3}})
+    assert (scene.level, scene.newton_rtol) == ("coarse", 1e-3)
+    assert scene.substep_tol == PRESETS["accurate"]["substep_tol"]
+    with pytest.raises(SceneError) as info:
+        parse_scene({"scene": {"fidelity": "ultra"}}, source="s.toml")
+    assert "scene.fidelity" in str(info.value) and "'ultra'" in str(info.value)
+    assert all(n in str(info.value) for n in FIDELITIES)
+
+
+# ------------------------------------------------------------------- command line
+
+def test_cli_run_fidelity_applies_the_preset_and_level_wins(tmp_path, monkeypatch, capsys):
+    from facefmu import cli, run_scene
+
+    built = []
+
+    class Recording(Simulation):
+        def __init__(self, *args, **kw):
+            super().__init__(*args, **kw)
+            built.append(self.scene)
+
+    monkeypatch.setattr(run_scene, "Simulation", Recording)
+    scene = tmp_path / "tiny.toml"
+    scene.write_text('[scene]\nname = "tiny"\nduration = 0.01\n[muscles]\ndriven = ["OOP"]\n'
+                     '[outputs]\ninterval = 0.01\n[[schedule]]\nmuscle = "OOP"\nkind = "step"\n'
+                     'time = 0.0\nvalue = 0.3\n')
+    assert cli.main(["run", str(scene), "--fidelity", "balanced", "--out", str(tmp_path),
+                     "--quiet"]) == 0
+    assert cli.main(["run", str(scene), "--fidelity", "balanced", "--level", "coarse",
+                     "--out", str(tmp_path), "--quiet"]) == 0
+    assert [s.level for s in built] == ["medium", "coarse"]
+    assert all(s.substep_tol == PRESETS["balanced"]["substep_tol"] for s in built)
+    assert (tmp_path / "tiny.csv").is_file()
+    with pytest.raises(SystemExit) as info:
+        cli.main(["run", str(scene), "--fidelity", "ultra"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "'ultra'" in err and all(n in err for n in FIDELITIES)
+
+
+# --------------------------------------------------------------------------- FMU
+
+def _slave(**params):
+    from facefmu.facefmu_slave import FaceFMU
+    fmu = FaceFMU(instance_name="test")
+    for k, v in params.items():
+        setattr(fmu, k, v)
+    return fmu
+
+
+def test_fmu_declares_a_fidelity_string_parameter_defaulting_to_the_scene():
+    root = _slave().to_xml()
+    var = next(v for v in root.find("ModelVariables") if v.get("name") == "fidelity")
+    assert var.get("causality") == "parameter" and var.get("variability") == "fixed"
+    assert var[0].tag == "String" and var[0].get("start") == ""
+    assert all(n in var.get("description") for n in FIDELITIES)
+
+
+def test_fmu_fidelity_preset_sets_level_and_tolerances_and_warns_for_ignored_parameters():
+    fmu = _slave(fidelity="balanced", level="paper")
+    fmu.exit_initialization_mode()
+    assert fmu.sim.scene.level == "medium"
+    assert fmu.sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
+    assert any("level = 'paper' not used" in m.msg and "balanced" in m.msg
+               for m in fmu.log_queue)
+    plain = _slave(level="medium", tolerance=2e-3)            # fidelity "": the parameters
+    plain.exit_initialization_mode()
+    assert (plain.sim.scene.level, plain.sim.scene.substep_tol) == ("medium", 2e-3)
+
+
+def test_fmu_unknown_fidelity_fails_initialization_with_a_logged_message():
+    fmu = _slave(fidelity="ultra")
+    with pytest.raises(ParameterError):
+        fmu.exit_initialization_mode()
+    errors = [m.msg for m in fmu.log_queue if m.status.name == "error"]
+    assert len(errors) == 1 and "fidelity 'ultra'" in errors[0]
+    assert all(n in errors[0] for n in FIDELITIES)
+
+
+FMPY_SCRIPT = textwrap.dedent("""
+    import json, sys
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    path, out = sys.argv[1], sys.argv[2]
+    md = read_model_description(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzip, res = extract(path), {}
+    for value in ("fast", "ultra"):
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzip, instanceName=value,
+                        modelIdentifier=md.coSimulation.modelIdentifier)
+        fmu.instantiate(loggingOn=True, callbacks=None)
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.setString([vr["fidelity"]], [value])
+        try:
+            fmu.exitInitializationMode()
+            fmu.setReal([vr["OOP"]], [0.5])
+            fmu.doStep(0.0, 0.01)
+            res[value] = fmu.getReal([vr["lip_protrusion"]])[0]
+            fmu.terminate()
+        except Exception as exc:
+            res[value] = type(exc).__name__
+        fmu.freeInstance()
+    json.dump(res, open(out, "w"))
+""")
+
+
+def test_built_fmu_takes_the_fidelity_parameter_through_fmpy(tmp_path):
+    build = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest",
+                            str(tmp_path)], capture_output=True, text=True, cwd=tmp_path)
+    assert build.returncode == 0, build.stderr
+    script, out = tmp_path / "fidelity.py", tmp_path / "out.json"
+    script.write_text(FMPY_SCRIPT)
+    run = subprocess.run([sys.executable, str(script), str(tmp_path / "FaceFMU.fmu"),
+                          str(out)], capture_output=True, text=True, cwd=tmp_path,
+                         timeout=300)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    res = json.loads(out.read_text())
+    assert isinstance(res["fast"], float) and res["fast"] != 0.0   # OOP moved the lips
+    assert res["ultra"] == "FMICallException"                      # fmi2Fatal at init
+
+
+# ------------------------------------------------------------------------- sweeps
+
+@pytest.fixture(scope="module")
+def sweep():
+    with Sweep(n_workers=2) as s:
+        yield s
+
+
+def test_two_task_sweep_on_a_local_cluster_reports_each_run_with_its_own_costs(sweep):
+    tasks = [{"label": "half", **TINY}, {"label": "full", **TINY, "half": False}]
+    half, full = sweep.run(tasks, avt.gesture(duration=0.02), progress=False)
+    assert (half["label"], full["label"]) == ("half", "full")
+    assert half["error"] == full["error"] == ""
+    assert 0 < half["ndof"] < full["ndof"]
+    for r in (half, full):
+        assert r["wall_s"] > 0 and r["cpu_s"] > 0 and r["peak_mb"] > 0
+        assert r["memory_method"] == "vmhwm"
+        assert r["rtf"] == pytest.approx(r["wall_s"] / 0.02)
+        assert [round(row["time"], 6) for row in r["rows"]] == [0.0, 0.01, 0.02]
+    assert half["worker"].split(":")[1] != str(__import__("os").getpid())   # not here
+    assert half["rows"][-1]["lip_protrusion"] == pytest.approx(
+        full["rows"][-1]["lip_protrusion"], abs=1e-3)      # a symmetric gesture
+
+
+def test_a_failing_task_reports_its_error_and_the_sweep_goes_on(sweep):
+    bad, good = sweep.run([{"label": "bad", **TINY, "anatomy": "/nowhere"},
+                           {"label": "good", **TINY}], avt.gesture(duration=0.02),
+                          progress=False)
+    assert "/nowhere" in bad["error"]
+    assert good["error"] == "" and good["ndof"] > 0
+
+
+def test_quick_level_study_error_falls_as_the_level_rises(sweep):
+    """The check of `accuracy_vs_time.py --quick`: its level study (coarse and medium
+    against paper at the default tolerances) over its duration."""
+    specs = [s for s in avt.sweep_specs(quick=True) if s["label"] in LEVELS]
+    results = avt.run_specs(sweep, specs, avt.QUICK_DURATION, progress=False)
+    rows, rates, falls = avt.level_study(avt.evaluate(specs, results))
+    assert [r["level"] for r in rows] == ["coarse", "medium"]
+    assert falls, [(r["level"], r["err_mm"]) for r in rows]
+    assert rates["err_mm"] > 0
+
+
+@pytest.mark.slow
+def test_quick_benchmark_runs_and_exits_0(tmp_path):
+    assert avt.main(["--quick", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "pareto.png").stat().st_size > 0
+    assert (tmp_path / "accuracy_vs_time.csv").read_text().count("\n") > 5
+
+
+# -------------------------------------------------------------- benchmark helpers
+
+def test_errors_are_taken_against_each_runs_reference():
+    def result(values):
+        return {"error": "", "ndof": 3, "wall_s": 1.0, "cpu_s": 1.0, "rtf": 10.0,
+                "peak_mb": 1.0, "volume_mm3": 8.0, "bricks": 1,
+                "rows": [{"time": 0.01 * i, "lip_aperture": a, "lip_protrusion": p}
+                         for i, (a, p) in enumerate(values)]}
+
+    specs = [avt.spec("ref", None), avt.spec("a", "ref"), avt.spec("b", "bad"),
+             avt.spec("bad", None)]
+    results = [result([(1, 0), (2, 1)]), result([(1.5, 0), (2, 0.75)]),
+               result([(1, 0), (2, 1)]), {"error": "boom"}]
+    ref, a, b, bad = avt.evaluate(specs, results)
+    assert "err_mm" not in ref and ref["h_mm"] == 2.0
+    assert (a["err_aperture_mm"], a["err_protrusion_mm"], a["err_mm"]) == (0.5, 0.25, 0.5)
+    assert "boom" in b["error"] and "err_mm" not in b
+    assert bad["error"] == "boom"
+
+
+def test_pareto_mask_and_rate_fit():
+    assert avt.pareto_mask([1, 2, 3, 4], [5, 1, 2, 0.5]).tolist() == [True, True, False, True]
+    p, c = avt.fit_rate([1.0, 2.0, 4.0], [0.3, 1.2, 4.8])
+    assert p == pytest.approx(2.0) and c == pytest.approx(0.3)
+
+
+def test_every_preset_is_a_run_of_the_default_sweep():
+    specs = avt.sweep_specs(quick=False)
+    table = [{k: s[k] for k in ("label", *avt.KNOBS)} for s in specs]
+    avt.mark_presets(table)
+    assert {r.get("preset") for r in table} >= set(FIDELITIES)
