@@ -20,7 +20,7 @@ from .model import Model
 from .muscles import MuscleProperties
 from .terms.cables import Cables
 from .strain import log_principal_strains
-from .terms.stiffening import Stiffening, muscle_neighbourhoods
+from .terms.stiffening import Stiffening, muscle_neighbourhoods, muscle_weights
 
 LIP_OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
                "lower_lip_protrusion")
@@ -51,8 +51,12 @@ class FaceModel:
             self.cables = Cables(anatomy, self.muscles, self.properties, self.activation)
             self.model.add_term(self.cables)
             if stiffening:
+                weights = muscle_weights(anatomy, self.regions,
+                                         self.properties.stiffening_radius,
+                                         self.properties.stiffening_rule)
                 self.stiffening = Stiffening(mesh, self.model.elasticity.params,
-                                             self.regions, self.properties, self.activation)
+                                             self.regions, self.properties, self.activation,
+                                             weights)
                 self.model.add_term(self.stiffening)
 
     @property

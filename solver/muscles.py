@@ -30,7 +30,9 @@ tissue's own initial Young's modulus E_0 = 6 c10 = 15 kPa (the paper's E) at res
 contracted Young's modulus of skeletal muscle E_c = 110 kPa (Duck, Physical Properties of
 Tissue, 1990) at a = 1: k(1) = 7.33. (Duck's relaxed-muscle modulus, 6.2 kPa, is below
 the paper's tissue modulus; the law starts from the tissue the model actually has.) A
-brick near two muscles takes the larger factor.
+brick near two muscles takes the larger factor. By default a brick's factor is weighted
+by the fraction of its volume inside the radius (stiffening_rule "volume"; "intersect" is
+the paper's whole-brick rule; solver/terms/stiffening.py says why).
 """
 
 import math
@@ -70,6 +72,7 @@ class MuscleProperties:
     eps_contraction: float = EPS_CONTRACTION
     stiffening_max: float = E_CONTRACTED_KPA / E_TISSUE_KPA
     stiffening_radius: dict = field(default_factory=lambda: dict(STIFFENING_RADIUS_MM))
+    stiffening_rule: str = "volume"                     # or "intersect" (solver.terms.stiffening)
 
     def __post_init__(self):
         for name in ("f_max", "force_scale", "stiffening_radius"):
@@ -85,6 +88,9 @@ class MuscleProperties:
             v = getattr(self, name)
             if not v > 0:
                 raise ParameterError(f"{name} = {v!r} must be > 0")
+        if self.stiffening_rule not in ("volume", "intersect"):
+            raise ParameterError(f"stiffening_rule = {self.stiffening_rule!r} is not one of "
+                                 "['volume', 'intersect']")
         if not self.stiffening_max >= 1.0:
             raise ParameterError(f"stiffening_max = {self.stiffening_max!r} must be >= 1")
 

@@ -129,3 +129,23 @@ def test_stiffened_tissue_deforms_less_and_is_stiffer_transversely():
     d0, d1, dfree = deflection(0.0, True), deflection(1.0, True), deflection(1.0, False)
     assert d1 < 0.5 * d0                   # stiffness rises with activation
     assert d1 < dfree                      # and stiffening is what does it
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_volume_rule_stiffens_the_tube_whatever_the_mesh(n):
+    """Weighted by the volume fraction within r, the stiffened volume is the tube's
+    pi r^2 L on a coarse and a fine mesh; the paper's whole-brick rule takes more, the
+    more the coarser the mesh."""
+    from solver.terms.stiffening import muscle_weights
+    L, r = 8.0, 1.0
+    mesh = box(n, n, n, (L, 4.0, 4.0))
+    fib = Fibre("OOP", "left", np.array([[0.0, 2.1, 1.9], [L, 2.1, 1.9]]),
+                np.array([False, False]))
+    anat = Anatomy("bar", mesh, [fib], {}, half=False)
+    regions = muscle_neighbourhoods(anat, ["OOP"], {"OOP": r})
+    vol = mesh.det_j.sum(axis=1)[regions["OOP"]]            # brick volumes (8 Gauss pts, w = 1)
+    tube = np.pi * r ** 2 * L
+    w = muscle_weights(anat, regions, {"OOP": r}, "volume")["OOP"]
+    assert abs((w * vol).sum() - tube) < 0.12 * tube
+    whole = muscle_weights(anat, regions, {"OOP": r}, "intersect")["OOP"]
+    assert (whole * vol).sum() > 1.3 * tube

@@ -10,6 +10,16 @@ The neighbourhood of a muscle is the set of bricks that a sphere of radius r swe
 its fibres intersects, computed once per anatomy: a brick is taken where the fibre passes
 through it, or where one of its 4 x 4 x 4 sample points (corners, edges, faces, inside)
 lies within r of the fibre (sampled at r/4); the miss is at most a third of a brick edge.
+
+Rules (MuscleProperties.stiffening_rule):
+* "intersect" (the paper's): every brick of the neighbourhood takes the muscle's factor:
+  k_e = k(a). The stiffened volume is that of the bricks, so it shrinks as the mesh is
+  refined (RIS on the generic face: 5,458 mm^3 coarse, 1,455 mm^3 fine) and each mesh
+  level is a different model: no convergence under refinement.
+* "volume" (default): k_e = 1 + w_e (k(a) - 1), w_e the fraction of the brick's volume
+  within r of the fibres (its 4 x 4 x 4 cell-centre samples in the natural coordinates;
+  the samples of a regular brick carry equal volume). The stiffened volume is that of
+  the tube about the fibre whatever the mesh, so refinement converges to one model.
 """
 
 import numpy as np
@@ -52,6 +62,39 @@ def _sample_tree(mesh):
     return cKDTree(pts.reshape(-1, 3))
 
 
+_XI_CELLS = np.stack(np.meshgrid(*[np.linspace(-0.75, 0.75, 4)] * 3, indexing="ij"),
+                     -1).reshape(-1, 3)
+
+
+def _segment_distance(p, a, b):
+    """(k,) distance of points p (k, 3) to the segment a-b."""
+    ab = b - a
+    t = np.clip((p - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - a - t[:, None] * ab, axis=1)
+
+
+def volume_fractions(mesh, bricks, fibres, radius):
+    """(k,) fraction of each brick's volume within radius (mm) of the fibres' polylines."""
+    if len(bricks) == 0 or not fibres:
+        return np.zeros(len(bricks))
+    pts = np.einsum("sa,maj->msj", shape_functions(_XI_CELLS), mesh.nodes[mesh.bricks[bricks]])
+    flat = pts.reshape(-1, 3)
+    d = np.full(len(flat), np.inf)
+    for f in fibres:
+        for a, b in zip(f.points[:-1], f.points[1:]):
+            d = np.minimum(d, _segment_distance(flat, a, b))
+    return (d <= radius).reshape(len(bricks), -1).mean(axis=1)
+
+
+def muscle_weights(anatomy, regions, radii, rule):
+    """muscle -> (k,) weights w_e of its region's bricks: 1 ('intersect') or the volume
+    fraction within its radius ('volume')."""
+    if rule == "intersect":
+        return {m: np.ones(len(b)) for m, b in regions.items()}
+    return {m: volume_fractions(anatomy.mesh, b, anatomy.muscle_fibres(m), radii[m])
+            for m, b in regions.items()}
+
+
 def muscle_neighbourhoods(anatomy, muscles, radii):
     """muscle -> brick indices (k,), for the given muscles."""
     tree = _sample_tree(anatomy.mesh)
@@ -64,8 +107,9 @@ class Stiffening(Elasticity):
 
     name = "stiffening"
 
-    def __init__(self, mesh, base_params, regions, properties, activation):
-        """base_params (m, 6) of the tissue; regions: muscle -> brick indices."""
+    def __init__(self, mesh, base_params, regions, properties, activation, weights=None):
+        """base_params (m, 6) of the tissue; regions: muscle -> brick indices; weights:
+        muscle -> (k,) weight of each region brick (default 1: the paper's rule)."""
         subset = np.unique(np.concatenate([np.zeros(0, np.int64)] + list(regions.values())))
         super().__init__(mesh, np.zeros(6), "full", subset)
         self.properties, self.activation = properties, activation
@@ -73,15 +117,16 @@ class Stiffening(Elasticity):
         self._c = base[:, [0, 2]]                               # c10, c20 of each brick
         self.params[:, 5] = np.inf                              # no volumetric part
         pos = {b: i for i, b in enumerate(subset)}
-        self.member = np.zeros((len(subset), len(MUSCLE_NAMES)), dtype=bool)
+        self.weight = np.zeros((len(subset), len(MUSCLE_NAMES)))
         for m, bricks in regions.items():
-            self.member[[pos[b] for b in bricks], MUSCLE_NAMES.index(m)] = True
+            w = np.ones(len(bricks)) if weights is None else weights[m]
+            self.weight[[pos[b] for b in bricks], MUSCLE_NAMES.index(m)] = w
         self.regions = regions
 
     def factors(self, lam):
         """(k,) stiffening factor of each brick of the subset at load factor lam."""
         k = self.properties.stiffening_factor(self.activation.at(lam))       # (10,)
-        return np.where(self.member, k[None, :], 1.0).max(axis=1)
+        return (1.0 + self.weight * (k[None, :] - 1.0)).max(axis=1)
 
     def assemble(self, state, asm, block_ids):
         f = self.factors(state.lam) - 1.0
