@@ -39,6 +39,8 @@ OUTPUT_DESCRIPTIONS = {
     "lip_width": "distance between the mouth corners",
     "upper_lip_protrusion": "forward displacement of the upper lip's front point from rest",
     "lower_lip_protrusion": "forward displacement of the lower lip's front point from rest",
+    "contact_force": "total normal contact force, lip on lip and lips/cheeks on the teeth "
+                     "(0 where the scene has no contact)",
 }
 PARAMETERS = ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep",
               "fidelity")
@@ -70,13 +72,17 @@ class FaceFMU(Fmi2Slave):
             self.register_variable(Real(name, causality=Fmi2Causality.output,
                                         variability=Fmi2Variability.continuous,
                                         description=text))
-        self.newton_iterations, self.substeps = 0, 0
+        self.newton_iterations, self.substeps, self.cutbacks = 0, 0, 0
         self.register_variable(Integer("newton_iterations", causality=Fmi2Causality.output,
                                        variability=Fmi2Variability.discrete,
                                        description="Newton iterations in the last doStep"))
         self.register_variable(Integer("substeps", causality=Fmi2Causality.output,
                                        variability=Fmi2Variability.discrete,
                                        description="accepted substeps in the last doStep"))
+        self.register_variable(Integer("cutbacks", causality=Fmi2Causality.output,
+                                       variability=Fmi2Variability.discrete,
+                                       description="failed substeps retried with half the "
+                                                   "step in the last doStep"))
         fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
         self.register_variable(String("anatomy", description="'generic' or the path of an "
                                       "ANSYS face folder", **fixed))
@@ -184,12 +190,14 @@ class FaceFMU(Fmi2Slave):
             setattr(self, name, out[name])
         self.newton_iterations = int(out["newton_iterations"])
         self.substeps = int(out["substeps"])
+        self.cutbacks = int(out["cutbacks"])
 
     # -- state ---------------------------------------------------------------------------
     def _get_fmu_state(self):
         state = {name: getattr(self, name) for name in
                  list(MUSCLE_NAMES) + list(OUTPUT_DESCRIPTIONS) + ["newton_iterations",
-                                                                  "substeps", "time"]}
+                                                                  "substeps", "cutbacks",
+                                                                  "time"]}
         if self.sim is not None:
             state["sim"] = self.sim.get_state()
         return state
@@ -202,6 +210,7 @@ class FaceFMU(Fmi2Slave):
             self.sim.set_state(state["sim"])
             self.sim.last.newton_iterations = int(state["newton_iterations"])
             self.sim.last.substeps = int(state["substeps"])
+            self.sim.last.cutbacks = int(state.get("cutbacks", 0))
 
     @staticmethod
     def _fmu_state_to_bytes(state):

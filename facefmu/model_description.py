@@ -1,6 +1,6 @@
 """What pythonfmu's modelDescription.xml leaves out, added: units, bounds, dependencies.
 
-* UnitDefinitions for mm, s and the dimensionless "1"; unit, min and max on the variables;
+* UnitDefinitions for mm, s, N and the dimensionless "1"; unit, min and max on the variables;
 * ModelStructure: every output declared with dependencies="" (outputs change only in
   doStep: no direct feedthrough), in Outputs and in InitialUnknowns;
 * needsExecutionTool="false" (the FMU runs in the importer's Python).
@@ -8,7 +8,8 @@
 
 from xml.etree.ElementTree import Element, SubElement
 
-UNITS = {"mm": {"m": "1", "factor": "0.001"}, "s": {"s": "1"}, "1": {}}
+UNITS = {"mm": {"m": "1", "factor": "0.001"}, "s": {"s": "1"},
+         "N": {"kg": "1", "m": "1", "s": "-2"}, "1": {}}
 
 # name -> attributes of the type element (Real, Integer)
 ATTRIBUTES = {
@@ -19,6 +20,7 @@ ATTRIBUTES = {
     "lip_width": {"unit": "mm", "min": "0"},
     "upper_lip_protrusion": {"unit": "mm"},
     "lower_lip_protrusion": {"unit": "mm"},
+    "contact_force": {"unit": "N", "min": "0"},
     "newton_iterations": {"min": "0"},
     "substeps": {"min": "0"},
     "tolerance": {"unit": "mm", "min": "1e-12"},
