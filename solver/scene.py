@@ -26,6 +26,7 @@ recorded outputs and, for standalone runs, activation schedules.
     inertia = true                  # transient only
     damping = true                  # transient only
     stiffening = true
+    stiffening_rule = "volume"      # "volume" | "intersect" (the paper's whole bricks)
     lip_contact = false
     teeth_contact = false
     gravity = "none"                # "none" | "upright" | "supine"
@@ -125,6 +126,7 @@ class Scene:
     inertia: bool = True
     damping: bool = True
     stiffening: bool = True
+    stiffening_rule: str = "volume"
     lip_contact: bool = False
     teeth_contact: bool = False
     gravity: str = "none"
@@ -235,6 +237,7 @@ SECTIONS = {
     "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales)},
     "effects": {"inertia": ("inertia", _bool), "damping": ("damping", _bool),
                 "stiffening": ("stiffening", _bool), "lip_contact": ("lip_contact", _bool),
+                "stiffening_rule": ("stiffening_rule", _choice(("volume", "intersect"))),
                 "teeth_contact": ("teeth_contact", _bool),
                 "gravity": ("gravity", _choice(tuple(GRAVITY)))},
     "gravity": {"g": ("g", _number(0.0))},

@@ -59,14 +59,16 @@ def test_oop_protrudes_the_lips_and_narrows_the_aperture(solved):
     _, res = solved
     _, rest, out = res["OOP"]
     assert out["lip_protrusion"] > 0.3
-    assert out["lip_aperture"] < rest["lip_aperture"] - 0.3 or out["lip_aperture"] == 0.0
+    assert out["lip_aperture"] < rest["lip_aperture"] - 0.1 or out["lip_aperture"] == 0.0
 
 
 def test_oop_buc_closes_more_and_protrudes_less_than_oop_alone(solved):
     _, res = solved
     oop, both = res["OOP"][2], res["OOP+BUC"][2]
     assert both["lip_protrusion"] < oop["lip_protrusion"] - 0.2     # stiffened cheeks
-    assert both["lip_aperture"] <= min(oop["lip_aperture"], 0.1)
+    # the lips (nearly) close: within 0.2 mm statically, without lip/lip contact; with it
+    # they touch (the transient test below)
+    assert both["lip_aperture"] <= min(oop["lip_aperture"], 0.2)
 
 
 @pytest.mark.xfail(strict=True, reason="BUC at its peak force (2.83 N per fibre) pulls "
