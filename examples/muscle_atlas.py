@@ -3,7 +3,8 @@ a = 0.5 and 1 on both anatomies, and pictures of the paper's cases (its Figures 
 
     python examples/muscle_atlas.py [--out docs] [--level paper] [--no-contact]
 
-Static equilibrium, half face (symmetric activations), activation stiffening on, lip/teeth
+Static equilibrium, half face (symmetric activations), activation stiffening on (the
+paper's whole-brick rule, effects.stiffening_rule = "intersect", as in its scenes), lip/teeth
 contact on (unless --no-contact); no lip/lip contact (static Newton with pressed lips is not
 robust yet: the transient scenes carry it), so an aperture of 0 may mean lips crossing. The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
@@ -29,7 +30,8 @@ KEYS = ("lip_aperture", "lip_protrusion", "lip_width")
 def solve(anatomy, activations, contact):
     scene = parse_scene({"scene": {"analysis": "static"},
                          "muscles": {"driven": sorted(activations)},
-                         "effects": {"teeth_contact": contact, "lip_contact": False}})
+                         "effects": {"teeth_contact": contact, "lip_contact": False,
+                                     "stiffening_rule": "intersect"}})
     sim = Simulation(scene, loaded_anatomy=anatomy)
     sim.set_activations(activations)
     stats = sim.step(1.0)
@@ -53,7 +55,7 @@ def main(argv=None):
     lines = ["# What each muscle does", "",
              f"Made by `python examples/muscle_atlas.py --level {args.level}"
              f"{' --no-contact' if not contact else ''}`: static equilibrium, half face, "
-             f"stiffening on, lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
+             f"stiffening on (the paper's whole-brick rule), lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
              "(an aperture of 0 may mean crossing lips). Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "
              "displacement).", ""]

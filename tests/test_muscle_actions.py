@@ -1,7 +1,7 @@
 """What single muscles and the paper's OOP + BUC case do to the lips (the paper's Figures 8
 to 10), on the generic face (coarse, half) and on the reference face where present.
 
-Static equilibria at a = 1 with lip/teeth contact (lip/lip contact is checked in the
+Static equilibria at a = 1 with the paper's whole-brick stiffening rule and lip/teeth contact (lip/lip contact is checked in the
 transient test at the end: static Newton with pressed lips is not robust yet).
 """
 
@@ -24,7 +24,8 @@ CASES = {"RIS": {"RIS": 1.0}, "OOP": {"OOP": 1.0}, "BUC": {"BUC": 1.0},
 
 def _static(anatomy, act):
     scene = parse_scene({"scene": {"analysis": "static"}, "muscles": {"driven": sorted(act)},
-                         "effects": {"teeth_contact": True, "lip_contact": False}})
+                         "effects": {"teeth_contact": True, "lip_contact": False,
+                                     "stiffening_rule": "intersect"}})
     sim = Simulation(scene, loaded_anatomy=anatomy)
     rest = sim.outputs()
     sim.set_activations(act)
