@@ -68,8 +68,10 @@ seen.
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
 and the reverse; quads split into two triangles). The sparsity pattern is built once, so
 the candidate (slave node, master triangle) pairs are fixed at rest: master triangles
-within radius of the slave that face it (normals opposed: the slave's area-weighted
-normal . the triangle's normal < 0, and the slave in front of the triangle's plane),
+within radius of the slave that face it (normals opposed: some face of the slave at that
+node has n . the triangle's normal < 0, so that a node on an edge of its lip, e.g. where
+the slit meets the inner face, also sees the other lip's inner face that it may wrap
+around; and the slave in front of the triangle's plane),
 which keeps the backs and the filled caps of closed lip surfaces out; at most max_pairs
 nearest per slave. Nodes on both surfaces (the joined mouth corners) are no slaves, and a
 slave inside the other lip at rest by more than rest_tolerance is dropped. Each slave
@@ -241,6 +243,27 @@ def _tissue_points(mesh, nodes):
     return acc[nodes] / count[nodes, None]
 
 
+def _incidence(tris, n):
+    """CSR lists (ptr (n + 1,), triangle ids) of the triangles at each of n nodes."""
+    node = tris.ravel()
+    order = np.argsort(node, kind="stable")
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(node, minlength=n), out=ptr[1:])
+    return ptr, order // 3
+
+
+def _min_facing(ptr, tri_ids, slave_fn, nodes, master_n):
+    """(p,) the smallest n_f . master_n[p] over the slave surface's faces f at nodes[p]
+    (inf for a node on no face): negative when any face of the slave faces the master."""
+    out = np.full(len(nodes), np.inf)
+    count = ptr[nodes + 1] - ptr[nodes]
+    for k in range(int(count.max(initial=0))):
+        has = count > k
+        f = tri_ids[ptr[nodes[has]] + k]
+        out[has] = np.minimum(out[has], (slave_fn[f] * master_n[has]).sum(axis=1))
+    return out
+
+
 def _check(penalty, onset):
     if not penalty > 0:
         raise ParameterError(f"penalty = {penalty!r} must be > 0 (N/mm^3)")
@@ -410,13 +433,13 @@ class LipContact(Term, _Report):
         ptr, ti = _lists(cKDTree(cen), x[slaves], radius + reach)
         si = np.repeat(np.arange(len(slaves)), np.diff(ptr))
         st = self.normals[s].tris
-        nrm = np.zeros((len(x), 3))                           # area-weighted slave normals
-        np.add.at(nrm, st, np.cross(x[st[:, 1]] - x[st[:, 0]], x[st[:, 2]] - x[st[:, 0]])[:, None])
+        sn = self.normals[s].fn                               # the slave surface's faces
         d2 = np.empty(len(ti))
         pair_distances(x[slaves[si]], x, tris, ti, d2)
         ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
-        ok = (d2 <= radius ** 2) & ((nrm[slaves[si]] * fn[ti]).sum(axis=1) < 0) \
-            & (ahead > -FACING_TOLERANCE)
+        inc_p, inc_t = _incidence(st, len(x))
+        facing = _min_facing(inc_p, inc_t, sn, slaves[si], fn[ti])
+        ok = (d2 <= radius ** 2) & (facing < 0) & (ahead > -FACING_TOLERANCE)
         order = np.lexsort((d2[ok], si[ok]))                  # by slave, nearest first
         si, ti = si[ok][order], ti[ok][order]
         first = np.arange(len(si)) - np.searchsorted(si, si) < max_pairs
