@@ -42,7 +42,7 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     from fmpy.validation import validate_fmu
     assert validate_fmu(str(fmu)) == []
     root = ET.fromstring(zipfile.ZipFile(fmu).read("modelDescription.xml"))
-    assert {u.get("name") for u in root.find("UnitDefinitions")} == {"mm", "s", "1"}
+    assert {u.get("name") for u in root.find("UnitDefinitions")} == {"mm", "s", "N", "1"}
     assert root.find("CoSimulation").get("needsExecutionTool") == "false"
     assert root.find("CoSimulation").get("canGetAndSetFMUstate") == "true"
     assert root.find("DefaultExperiment") is not None
@@ -52,10 +52,11 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     assert (oop[0].get("unit"), oop[0].get("min"), oop[0].get("max"), oop[0].get("start")) == \
         ("1", "0", "1", "0")
     assert variables["lip_aperture"][0].get("unit") == "mm"
-    for p in ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep"):
+    for p in ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep", "fidelity"):
         assert variables[p].get("causality") == "parameter", p
     outputs = root.find("ModelStructure").find("Outputs")
-    assert len(outputs) == 7 and all(u.get("dependencies") == "" for u in outputs)
+    assert len(outputs) == 9 and all(u.get("dependencies") == "" for u in outputs)
+    assert variables["contact_force"][0].get("unit") == "N"
 
 
 @pytest.mark.skipif(shutil.which("fmutool") is None, reason="fmu-manipulation-toolbox absent")
