@@ -109,10 +109,10 @@ def _line_search(system, u, du, r0, opts):
         for _ in range(opts.max_ls):    # backtrack while the residual grew (a kink)
             if float(np.linalg.norm(r)) <= n0:
                 return s
-            s *= 0.5
-            r = _trial(system, u, du, s)
-            if _g(du, r) is None:
+            r = _trial(system, u, du, 0.5 * s)
+            if _g(du, r) is None:       # keep the last admissible s
                 break
+            s *= 0.5
         return s
     lo, glo = 0.0, g0
     hi, ghi = 1.0, g1
@@ -131,7 +131,7 @@ def _line_search(system, u, du, r0, opts):
             s = 0.5 * (lo + hi)
         g = _g(du, _trial(system, u, du, s))
         if g is None:                   # inadmissible inside the bracket: shrink from above
-            hi, ghi = s, ghi
+            hi = s
             continue
         if abs(g) < best[1]:
             best = (s, abs(g))
