@@ -8,11 +8,16 @@ source file's content) still recompiles them when the code changes.
 
 Order: $NUMBA_CACHE_DIR if set, else $FACEFMU_CACHE_DIR/numba, else
 $XDG_CACHE_HOME/facefmu/numba, else ~/.cache/facefmu/numba. A directory that cannot be
-written falls back to a fresh temporary directory, with a warning: kernels then compile
-again at each start, nothing fails.
+written (read-only, a path through a file, no home) falls back, with a RuntimeWarning, to
+a per-user folder of the temporary directory (facefmu-numba-<uid>, mode 0700, used only
+when it is ours and nobody else can write it: numba's cache files are pickles), which
+later starts reuse; failing that, to a fresh private temporary folder; and when no folder
+can be written at all, the solver's kernels are not cached (they compile at every start).
+Nothing fails.
 """
 
 import os
+import stat
 import tempfile
 import warnings
 from pathlib import Path
@@ -38,17 +43,66 @@ def _writable(path: Path) -> bool:
         probe.write_text("")
         probe.unlink()
         return True
-    except OSError:
+    except (OSError, ValueError):
         return False
 
 
-def configure_numba_cache() -> Path:
-    """Point numba's cache at the user cache directory; call before compiling kernels."""
-    wanted = Path(os.environ.get("NUMBA_CACHE_DIR") or user_cache_dir() / "numba")
-    if not _writable(wanted):
-        fallback = Path(tempfile.mkdtemp(prefix="facefmu-numba-"))
-        warnings.warn(f"numba cache directory {wanted} is not writable; compiled kernels "
-                      f"go to {fallback} and will not be reused", RuntimeWarning, stacklevel=2)
+def _owned_private_dir(path: Path) -> bool:
+    """path is a real directory (not a link) of this user that nobody else can write."""
+    st = os.lstat(path)
+    mine = not hasattr(os, "getuid") or st.st_uid == os.getuid()
+    return stat.S_ISDIR(st.st_mode) and mine and not st.st_mode & 0o022
+
+
+def _fallback_dir():
+    """A writable private folder of the temporary directory, or None."""
+    user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
+    try:
+        shared = Path(tempfile.gettempdir()) / f"facefmu-numba-{user}"
+        shared.mkdir(mode=0o700, exist_ok=True)
+        if _owned_private_dir(shared) and _writable(shared):
+            return shared
+    except OSError:
+        pass
+    try:
+        return Path(tempfile.mkdtemp(prefix="facefmu-numba-"))
+    except OSError:
+        return None
+
+
+def _disable_solver_caching():
+    """njit(cache=True) of the solver's kernels then compiles without a cache (numba would
+    otherwise refuse a cached function that no locator can place)."""
+    from numba.core.dispatcher import Dispatcher
+    if getattr(Dispatcher.enable_caching, "_facefmu", False):
+        return
+    original = Dispatcher.enable_caching
+
+    def enable_caching(self):
+        if getattr(self.py_func, "__module__", "").startswith("solver."):
+            return
+        original(self)
+    enable_caching._facefmu = True
+    Dispatcher.enable_caching = enable_caching
+
+
+def configure_numba_cache():
+    """Point numba's cache at the user cache directory (or a fallback, see the module
+    docstring); call before compiling kernels. The directory used, or None (no cache)."""
+    try:
+        wanted = Path(os.environ.get("NUMBA_CACHE_DIR") or user_cache_dir() / "numba")
+        what = f"numba cache directory {wanted} is not writable"
+    except (RuntimeError, KeyError):                # Path.home(): no home directory
+        wanted, what = None, "no home directory for the numba cache"
+    if wanted is None or not _writable(wanted):
+        fallback = _fallback_dir()
+        if fallback is None:
+            warnings.warn(f"{what} and no temporary folder is writable: the solver's "
+                          "kernels compile at every start", RuntimeWarning, stacklevel=2)
+            _disable_solver_caching()
+            return None
+        warnings.warn(f"{what}; compiled kernels go to {fallback}", RuntimeWarning,
+                      stacklevel=2)
         wanted = fallback
     os.environ["NUMBA_CACHE_DIR"] = str(wanted)
     import numba.core.config as config

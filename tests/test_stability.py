@@ -1,23 +1,100 @@
-"""Hard cases stay stable (quick versions; the full ones run from benchmarks/stress.py).
+"""Hard cases stay stable: the quick versions of solver/stability.py's cases (the full ones
+run with `python benchmarks/stress.py`, or here with `pytest -m slow`).
 
-For every case: no NaN or inf, no inverted brick, aperture >= 0, dissipated energy >= 0,
-and statistics reported; a step that cannot be taken is refused with the state unchanged.
+For every case: no NaN or inf, no inverted brick (det F > 0 at every Gauss point), lips
+within the contact tolerance where contact is on, outputs within bounds (aperture >= 0),
+dissipated energy never decreasing, statistics (cutbacks) reported; a step that cannot be
+taken is refused with the state unchanged. Halving every substep changes the outputs by
+less than HALVING_TOLERANCE. The same cases through the built FMU give the same outputs.
+The checks themselves are shown to catch broken states.
 """
 
-import resource
+import json
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from solver import stability as S
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.simulation import Simulation
+from solver.transient import StepStats
+from test_faults import exit_crash_is_known
+from test_fmu import SCRIPTS, fmu  # noqa: F401  (the session's built FMU)
 
+QUICK = {c.name: c for c in S.cases(full=False)}
+_runs = {}
+
+
+def quick_run(name):
+    """The quick case's run in this process (once per session)."""
+    if name not in _runs:
+        _runs[name] = S.run_case(QUICK[name])
+    return _runs[name]
+
+
+def _explain(run):
+    return "\n".join(run.problems)
+
+
+@pytest.mark.parametrize("name", list(QUICK))
+def test_quick_case_keeps_every_invariant(name):
+    run = quick_run(name)
+    assert run.passed, _explain(run)
+    case = QUICK[name]
+    assert run.steps == len(case.steps) - len(case.refused)
+    assert run.refused == list(case.refused)
+    assert run.min_det_f > 0 and np.isfinite(run.min_det_f)
+    if not case.rest:
+        assert run.dissipated > 0.0                   # the face moved, damping took energy
+    if name == "oop_buc_contact":                      # the lips do meet: contact is exercised
+        assert 0 < run.lip_penetration <= S.CONTACT_TOLERANCE
+        assert 0 < run.teeth_penetration <= S.CONTACT_TOLERANCE
+
+
+def test_halving_every_substep_changes_the_outputs_little():
+    case = QUICK["huge_steps"]
+    run = quick_run("huge_steps")
+    half = S.run_case(case.halved(), probe=False)
+    assert half.passed, _explain(half)
+    assert 1.6 < half.substeps / run.substeps < 2.6            # the substeps did halve
+    change = S.halving_change(run, half)
+    assert 0 < change <= S.HALVING_TOLERANCE
+
+
+def test_quick_cases_through_the_fmu(fmu, tmp_path):  # noqa: F811
+    import subprocess
+    import sys
+    names = ["oop_buc_contact", "tiny_steps", "huge_steps", "rest_1ms_steps", "refusal"]
+    specs = [S.fmu_spec(QUICK[n], tmp_path / f"{n}.toml") for n in names]
+    (tmp_path / "cases.json").write_text(json.dumps(specs))
+    proc = subprocess.run([sys.executable, str(SCRIPTS / "stress_case.py"), str(fmu),
+                           str(tmp_path / "out.json"), str(tmp_path / "cases.json")],
+                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert "ok" in proc.stdout.splitlines(), proc.stdout[-2000:] + proc.stderr[-4000:]
+    results = json.loads((tmp_path / "out.json").read_text())
+    from solver.anatomy.load import load_anatomy
+    bounds = S.output_bounds(load_anatomy("generic", "coarse", True))
+    for n in names:
+        problems, m = S.check_fmu_run(QUICK[n], results[n], quick_run(n), bounds)
+        assert not problems, (n, problems)
+        assert m["fmu_vs_solver"] <= S.FMU_MATCH_TOLERANCE
+    assert results["refusal"]["statuses"] == [0, 2, 0]
+    assert "did not converge" in proc.stdout                 # the refusal was logged
+    exit_crash_is_known(proc)
+
+
+# ------------------------------------------------------------- the checks can fail
 
 @pytest.fixture(scope="module")
 def sim():
     return Simulation("default")
+
+
+@pytest.fixture(scope="module")
+def probe(sim):
+    return S.Probe(sim.anatomy)
 
 
 @pytest.fixture
@@ -28,59 +105,106 @@ def fresh(sim):
     sim.set_state(start)
 
 
-def _check(sim, stats):
-    assert stats.converged, stats.reason
-    u = sim.face.u
-    assert np.all(np.isfinite(u)) and np.all(np.isfinite(sim.integrator.v))
-    assert sim.face.model.elasticity.min_det_f > 0.0
-    out = sim.outputs()
-    assert all(np.isfinite(v) for v in out.values())
-    assert out["lip_aperture"] >= 0.0
-    assert sim.integrator.dissipated >= 0.0
-    assert stats.substeps >= 1 and stats.newton_iterations >= 0 and stats.cutbacks >= 0
+def test_checks_catch_nan_inversion_penetration_and_bounds(fresh, probe):
+    measures, problems = S.check_state(fresh, probe)
+    assert problems == [] and measures["min_det_f"] == pytest.approx(1.0)
+    nodes = fresh.anatomy.mesh.nodes
+    fresh.face.model.u = np.full_like(nodes, np.nan)
+    assert any("non-finite" in p for p in S.check_state(fresh, probe)[1])
+    fresh.face.model.u = -2.0 * nodes                         # F = -I: every brick inverted
+    measures, problems = S.check_state(fresh, probe)
+    assert measures["min_det_f"] == pytest.approx(-1.0)
+    assert any("inverted brick" in p for p in problems)
+    u = np.zeros_like(nodes)
+    u[:, 1] = 500.0                                           # the face 0.5 m forward
+    fresh.face.model.u = u
+    assert any("lip_protrusion" in p for p in S.check_state(fresh, probe)[1])
+    # the upper lip pushed 3 mm down into the lower lip: seen, and refused with contact on
+    lm = fresh.anatomy.landmarks
+    upper = np.unique(fresh.anatomy.contact_surfaces["upper_lip"])
+    lower = np.unique(fresh.anatomy.contact_surfaces["lower_lip"])
+    gap = nodes[lm["upper_lip_edge"], 2] - nodes[lm["lower_lip_edge"], 2]
+    u = np.zeros_like(nodes)
+    u[np.setdiff1d(upper, lower), 2] = -(gap + 1.0)
+    fresh.face.model.u = u
+    lips, _ = probe.penetrations(u)
+    assert lips > S.CONTACT_TOLERANCE
+    assert {n for n, _, _ in probe.inside} & set(upper.tolist())    # upper-lip nodes inside
+    assert not any("penetration" in p for p in S.check_state(fresh, probe)[1])  # contact off
+    contact = Simulation("default", lip_contact=True, loaded_anatomy=fresh.anatomy)
+    contact.face.model.u = u
+    assert any("lip penetration" in p for p in S.check_state(contact, probe)[1])
 
 
-def test_all_ten_muscles_stepped_from_zero_to_one(fresh):
-    fresh.set_activations({m: 1.0 for m in MUSCLE_NAMES})
-    for k in range(5):
-        _check(fresh, fresh.step(fresh.t + 0.01))
-    assert fresh.integrator.dissipated > 0.0
+def test_point_triangle_distance_against_sampling(rng):
+    a, b, c = rng.normal(size=(3, 50, 3))
+    u, v = np.meshgrid(np.linspace(0, 1, 81), np.linspace(0, 1, 81))
+    keep = u + v <= 1
+    for p in rng.normal(scale=2.0, size=(10, 3)):
+        d = S.point_triangle_distance(p, a, b, c)
+        pts = a[:, None] + u[keep][None, :, None] * (b - a)[:, None] \
+            + v[keep][None, :, None] * (c - a)[:, None]
+        sampled = np.linalg.norm(pts - p, axis=2).min(axis=1)
+        assert np.all(d <= sampled + 1e-12) and np.all(sampled - d < 0.1)
 
 
-def test_bang_bang_antagonists_at_20_hz(fresh):
-    for k in range(4):                                  # 0.1 s: two full periods
-        on = k % 2 == 0
-        fresh.set_activations({"OOP": 1.0 if on else 0.0, "RIS": 0.0 if on else 1.0,
-                               "ZYG": 0.0 if on else 1.0})
-        _check(fresh, fresh.step(fresh.t + 0.025))
+def test_a_refused_step_that_changes_the_state_is_caught(monkeypatch):
+    def broken_step(self, t_end):
+        self.face.model.u = self.face.u + 1e-3           # a silently wrong "refusal"
+        return StepStats(converged=False, reason="fake")
+    monkeypatch.setattr(Simulation, "step", broken_step)
+    run = S.run_case(QUICK["tiny_steps"], probe=False)
+    assert not run.passed
+    assert any("refused step changed the state" in p for p in run.problems)
 
 
-@pytest.mark.parametrize("step", [1e-4, 0.1])
-def test_tiny_and_huge_communication_steps(fresh, step):
-    fresh.set_activations({"OOP": 0.7, "BUC": 0.7})
-    for _ in range(3 if step < 0.01 else 1):
-        _check(fresh, fresh.step(fresh.t + step))
+def test_halved_scene_halves_the_substep_controls():
+    scene = S.halved(QUICK["bang_bang_20hz"].scene)
+    from solver.scene import Scene, parse_scene
+    sc, default = parse_scene(scene), Scene()
+    assert sc.substep_tol == default.substep_tol / 4
+    assert sc.max_substep == default.max_substep / 2
+    assert parse_scene(QUICK["bang_bang_20hz"].scene).hold == "step"
 
 
-def test_many_small_steps_at_rest_do_not_drift_or_grow_memory(fresh):
-    fresh.set_activations({})
-    fresh.step(fresh.t + 1e-3)
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    for _ in range(500):
-        st_ = fresh.step(fresh.t + 1e-3)
-        assert st_.converged
-    assert np.abs(fresh.face.u).max() < 1e-9                # at rest nothing moves
-    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 50_000  # kB
+def test_case_scenes_round_trip_through_toml(tmp_path):
+    from solver.scene import load_scene, parse_scene
+    for case in QUICK.values():
+        path = tmp_path / f"{case.name}.toml"
+        path.write_text(S.to_toml(case.scene))
+        assert load_scene(path) == parse_scene(case.scene), case.name
 
+
+# ------------------------------------------------------------------ random sequences
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.lists(st.lists(st.floats(0.0, 1.0), min_size=10, max_size=10), min_size=2,
                 max_size=4), st.sampled_from([0.002, 0.01, 0.03]))
-def test_random_activation_sequences(sim, sequence, step):
+def test_random_activation_sequences(sim, probe, sequence, step):
     start = sim.get_state()
     try:
         for acts in sequence:
+            d0 = sim.integrator.dissipated
             sim.set_activations(dict(zip(MUSCLE_NAMES, acts)))
-            _check(sim, sim.step(sim.t + step))
+            stats = sim.step(sim.t + step)
+            assert stats.converged, stats.reason
+            assert stats.substeps >= 1 and stats.cutbacks >= 0
+            assert sim.outputs()["cutbacks"] == stats.cutbacks
+            assert sim.integrator.dissipated >= d0
+            measures, problems = S.check_state(sim, probe)
+            assert not problems, problems
     finally:
         sim.set_state(start)
+
+
+# ------------------------------------------------------------------- full versions
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", S.cases(full=True), ids=lambda c: c.name)
+def test_full_case(case):
+    run = S.run_case(case)
+    assert run.passed, _explain(run)
+    if case.halving:
+        half = S.run_case(case.halved(), probe=False)
+        assert half.passed, _explain(half)
+        assert S.halving_change(run, half) <= S.HALVING_TOLERANCE
