@@ -34,6 +34,12 @@ def _run(script, fmu, tmp_path, *args, timeout=600):
     out = tmp_path / "out.json"
     run = subprocess.run([sys.executable, str(SCRIPTS / script), str(fmu), str(out), *args],
                          capture_output=True, text=True, timeout=timeout, cwd=tmp_path)
+    if run.returncode < 0 and run.stdout.rstrip().endswith("ok") and out.is_file():
+        # finished its FMU work, then crashed while the interpreter shut down: the heap
+        # corruption at exit of processes that instantiated pythonfmu FMUs (seen about 1 run
+        # in 10 here; tests/test_faults.py::exit_crash_is_known)
+        pytest.xfail(f"the fmpy process crashed at exit (code {run.returncode}) after "
+                     f"finishing: {run.stderr.strip()[-200:]}")
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]
     return json.loads(out.read_text()), run.stdout
 
