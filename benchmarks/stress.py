@@ -148,10 +148,13 @@ def markdown(rows, command, notes, problems, wall):
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "
              "the smallest over all steps); lip outputs within bounds (aperture >= 0); "
              "dissipated energy never decreasing; statistics reported (cutbacks: total and "
-             "the most in one step); a refused step leaves the state unchanged. "
-             f"Penetrations (mm) are measured at every step by contact terms outside the "
-             f"model; they must stay below {S.CONTACT_TOLERANCE} mm where the case has that "
-             "contact on (column contact), elsewhere they are reported only. halving_mm: "
+             "the most in one step); a refused step leaves the state unchanged (runs of "
+             "more than 1000 steps check every tenth step). Penetrations (mm) are measured "
+             "outside the model: lip_pen_mm, lip-surface nodes inside bricks they do not "
+             "belong to (depth: distance to the nearest lip surface), teeth_pen_mm, signed "
+             f"distances to the teeth sheets, seen up to {S.PROBE_DEPTH:g} mm deep. They must "
+             f"stay below {S.CONTACT_TOLERANCE} mm where the case has that contact on (column "
+             "contact); elsewhere they are reported only. halving_mm: "
              "the largest change of a lip output at the communication points when every "
              f"substep is halved (limit {S.HALVING_TOLERANCE} mm). fmu rows: the same case "
              "through the built FMU with fmpy; fmu_vs_solver_mm is the largest difference "
@@ -164,7 +167,9 @@ def markdown(rows, command, notes, problems, wall):
     failed = {k: v for k, v in problems.items() if v}
     lines += ["", "Failures:" if failed else "No failures.", ""]
     for name, found in failed.items():
-        lines += [f"* {name}:"] + [f"  * {p}" for p in found]
+        more = len(found) - 5
+        lines += [f"* {name}:"] + [f"  * {p}" for p in found[:5]]
+        lines += [f"  * ... and {more} more (the first 20 are kept)"] if more > 0 else []
     return "\n".join(lines) + "\n"
 
 
