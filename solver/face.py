@@ -12,6 +12,7 @@ stiffening only covers their neighbourhoods.
 
 import numpy as np
 
+from . import aperture
 from .activation import Activation
 from .anatomy.base import MUSCLE_NAMES
 from .errors import ParameterError
@@ -60,6 +61,18 @@ class FaceModel:
                 self.model.add_term(self.stiffening)
 
     @property
+    def lip_contours(self):
+        """(upper, lower) mid-sagittal edges (k, 2) of the lip contact surfaces."""
+        if not hasattr(self, "_contours"):
+            mid = self.anatomy.mesh.node_sets["midsagittal"]
+            surf = self.anatomy.contact_surfaces
+            self._contours = tuple(aperture.midsagittal_edges(surf[k], mid)
+                                   for k in ("upper_lip", "lower_lip"))
+            if not all(len(c) for c in self._contours):
+                raise ParameterError("a lip contact surface has no mid-sagittal edge")
+        return self._contours
+
+    @property
     def regions(self):
         """muscle -> brick indices within its stiffening radius of its fibres (driven
         muscles; computed once)."""
@@ -106,7 +119,8 @@ class FaceModel:
     def lip_outputs(self, u=None):
         """Lip measures (mm) for displacements u (n, 3) (default: the current state).
 
-        lip_aperture          z gap between the mid-sagittal lip edges, 0 when they touch
+        lip_aperture          smallest distance between the lips in the mid-sagittal
+                              plane, 0 when they touch (solver/aperture.py)
         upper/lower_lip_protrusion  forward (y) displacement of each lip's front point
         lip_protrusion        their mean
         lip_width             distance between the mouth corners (2 |x| on a half face)
@@ -114,8 +128,7 @@ class FaceModel:
         u = self.model.u if u is None else u
         lm = self.anatomy.landmarks
         x = self.anatomy.mesh.nodes + u
-        up, lo = x[lm["upper_lip_edge"]], x[lm["lower_lip_edge"]]
-        out = {"lip_aperture": max(0.0, float(up[2] - lo[2]))}
+        out = {"lip_aperture": aperture.contour_gap(x[:, 1:], *self.lip_contours)}
         out["upper_lip_protrusion"] = float(u[lm["upper_lip_front"], 1])
         out["lower_lip_protrusion"] = float(u[lm["lower_lip_front"], 1])
         out["lip_protrusion"] = 0.5 * (out["upper_lip_protrusion"] + out["lower_lip_protrusion"])

@@ -34,7 +34,7 @@ recorded outputs and, for standalone runs, activation schedules.
     [gravity]
     g = 9.81                        # m/s^2
 
-    [damping]                       # Rayleigh C = alpha M + beta K0
+    [damping]                       # Rayleigh C = alpha M + beta K_n (solver/terms/inertia.py)
     alpha = 40.0                    # 1/s
     beta = 0.03                     # s
     density = 1040.0                # kg/m^3

@@ -26,7 +26,7 @@ A refused step (no convergence after every cutback) must leave the state exactly
 was (t, u, v, activations, dissipated energy); a case expects no refusal unless it names
 the step. ``run_case`` returns the outputs after each step and the worst values seen.
 A long run also checks that memory does not grow and, under a held activation, that the
-state never drifts away from the static equilibrium.
+state settles on the static equilibrium and never drifts away from it.
 
 Through the FMU (``fmu_spec``, ``check_fmu_run``, tests/fmu_scripts/stress_case.py): the
 same steps with fmpy; outputs finite and in bounds, the same refusals (fmi2Discard, outputs
@@ -36,7 +36,10 @@ Convergence: ``Case.halved()`` halves every substep (``halved(scene)``: substep_
 since backward Euler's local error grows as h^2 and the controller keeps it at the
 tolerance, and max_substep halved, at most half the smallest communication step), over
 the case or its first halving_time seconds; the lip outputs at the communication points
-must then change by less than HALVING_TOLERANCE.
+must then change by less than ``halving_limit(run)``: HALVING_TOLERANCE plus
+HALVING_RELATIVE of the largest lip-output excursion from the start of the case (the
+substep controller bounds each substep's local error, so the global error grows with
+the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
 """
 
 import os
@@ -53,9 +56,11 @@ from .scene import parse_scene
 from .terms.base import State
 
 CONTACT_TOLERANCE = 0.05    # mm: penalty contact's allowed penetration (solver/terms/contact.py)
-HALVING_TOLERANCE = 0.05    # mm: largest change of a lip output when every substep is halved
+HALVING_TOLERANCE = 0.05    # mm: largest change of a lip output when every substep is halved,
+HALVING_RELATIVE = 0.02     # plus this fraction of the largest excursion of the lip outputs
 MEMORY_LIMIT_MB = 50.0      # resident memory growth allowed over a long run
 REST_TOLERANCE = 1e-9       # mm: at rest nothing moves
+EQUILIBRIUM_TOLERANCE = 0.01    # mm: a held activation ends this close to the static state
 PROBE_DEPTH = 5.0           # mm: deepest lip-into-teeth penetration the probe sees
 
 
@@ -68,7 +73,7 @@ class Case:
     the convergence check, over the first halving_time seconds (None: all the steps);
     rest: nothing may move; memory: measure memory growth; equilibrium: track the largest
     lip-output distance to the static equilibrium at the last activations, at ten
-    checkpoints: it must never grow (no drift); the final one is reported."""
+    checkpoints: it must never grow (no drift) and end within EQUILIBRIUM_TOLERANCE."""
 
     name: str
     description: str
@@ -165,7 +170,7 @@ def cases(full=False):
     if full:
         # many 1 ms steps under a held activation: settles on the static equilibrium
         out.append(Case("held_1ms_steps", "10000 consecutive 1 ms steps, OOP + BUC held "
-                        "at 0.5: approaches the static equilibrium, never drifts away",
+                        "at 0.5: settles on the static equilibrium, never drifts away",
                         scene_dict("held_1ms_steps", ("OOP", "BUC")),
                         [(0.001, {"OOP": 0.5, "BUC": 0.5})] * 10_000, halving=False,
                         memory=True, equilibrium=True))
@@ -424,6 +429,7 @@ class CaseRun:
     memory_growth_mb: float = float("nan")
     equilibrium_change: float = float("nan")
     equilibrium_distances: list = field(default_factory=list)
+    start: dict = field(default_factory=dict)        # lip outputs before the first step
     wall: float = 0.0
 
     @property
@@ -466,6 +472,7 @@ def run_case(case, progress=None, probe=True):
     mem0 = None
     target = static_equilibrium(case, sim) if case.equilibrium else None
     distances = []
+    run.start = lip_outputs(sim)
     for k, (h, acts) in enumerate(case.steps):
         if case.memory and k == max(1, n // 10):
             mem0 = rss_mb()
@@ -530,6 +537,9 @@ def run_case(case, progress=None, probe=True):
             run.problem(None, "no static equilibrium to compare with")
         run.equilibrium_distances = distances
         run.equilibrium_change = distances[-1] if distances else float("nan")
+        if not run.equilibrium_change <= EQUILIBRIUM_TOLERANCE:
+            run.problem(None, f"ends {run.equilibrium_change:.4g} mm from the static "
+                              f"equilibrium (tolerance {EQUILIBRIUM_TOLERANCE} mm)")
     run.wall = time.perf_counter() - t_start
     sim.release()
     return run
@@ -554,6 +564,13 @@ def halving_change(run, half):
     if not half.passed or not half.rows:
         return float("inf")
     return max_change(run.rows[:len(half.rows)], half.rows)
+
+
+def halving_limit(run):
+    """The largest lip-output change (mm) allowed when the substeps of run are halved."""
+    excursion = max((abs(r[k] - run.start[k]) for r in run.rows for k in LIP_OUTPUTS),
+                    default=0.0)
+    return HALVING_TOLERANCE + HALVING_RELATIVE * excursion
 
 
 def max_change(rows_a, rows_b, keys=LIP_OUTPUTS):

@@ -27,7 +27,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .newton import newton
-from .terms.inertia import Damping, Inertia, passive_tangent
+from .terms.inertia import Damping, Inertia
 from .units import TISSUE_DENSITY
 
 
@@ -79,8 +79,7 @@ class Transient:
         if damping and (alpha > 0 or beta > 0):
             mass3 = mass3 if mass3 is not None else np.repeat(
                 Inertia(mesh, density).mass, 3)
-            K0 = passive_tangent(model.elasticity, 3 * mesh.n_nodes)
-            self.damping = Damping(mass3, alpha, beta, K0)
+            self.damping = Damping(mass3, alpha, beta, model.elasticity)
             self.step_terms.append(self.damping)
         else:
             self.damping = None

@@ -67,9 +67,9 @@ def test_oop_buc_closes_more_and_protrudes_less_than_oop_alone(solved):
     _, res = solved
     oop, both = res["OOP"][2], res["OOP+BUC"][2]
     assert both["lip_protrusion"] < oop["lip_protrusion"] - 0.2     # stiffened cheeks
-    # the lips (nearly) close: within 0.2 mm statically, without lip/lip contact; with it
-    # they touch (the transient test below)
-    assert both["lip_aperture"] <= min(oop["lip_aperture"], 0.2)
+    # the lips (nearly) close: within 0.5 mm statically, without lip/lip contact (the
+    # reference face's rest aperture: 3.2 mm); with it they touch (the transient test below)
+    assert both["lip_aperture"] <= min(oop["lip_aperture"] / 2, 0.5)
 
 
 @pytest.mark.xfail(strict=True, reason="BUC at its peak force (2.83 N per fibre) pulls "

@@ -21,7 +21,7 @@ def _bar():
 
 def _lowest_frequency(mesh, model):
     sysm = model.system()
-    K0 = passive_tangent(model.elasticity, sysm.ndof).tocsr()[sysm.free][:, sysm.free]
+    K0 = sysm.pattern.matrix(sysm.assemble(np.zeros(sysm.ndof))[1])[sysm.free][:, sysm.free]
     M = sp.diags(np.repeat(lumped_masses(mesh, TISSUE_DENSITY), 3)[sysm.free])
     w2 = sla.eigsh(K0, k=1, M=M, sigma=0, which="LM")[0][0]
     return np.sqrt(w2) / (2 * np.pi)
@@ -64,10 +64,13 @@ def _step_response(dt, t_end=0.02):
 
 
 def test_halving_dt_shows_first_order_convergence():
-    ref = _step_response(0.02 / 256)
-    errs = [abs(_step_response(0.02 / n) - ref) for n in (8, 16, 32)]
+    # two first-order errors of opposite signs (backward Euler's, and the damping matrix
+    # built on the substep's start shape) balance at coarse steps: asymptotic from 32 on
+    ref = _step_response(0.02 / 1024)
+    errs = [abs(_step_response(0.02 / n) - ref) for n in (32, 64, 128)]
     rates = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
-    assert np.all((rates > 0.8) & (rates < 1.3)), rates
+    assert np.all((rates > 0.7) & (rates < 1.3)), rates
+    assert 0.85 < rates[-1] < 1.15, rates
 
 
 def test_caller_steps_are_subdivided_and_land_on_time():
@@ -96,3 +99,48 @@ def test_damping_dissipates_and_bad_parameters_are_refused():
         Transient(model, alpha=-1.0)
     with pytest.raises(solver.ParameterError, match="step end"):
         Transient(model).advance(-1.0)
+
+
+def _spin(x):
+    """Velocity (n, 3) of a rigid rotation about the z axis through the origin."""
+    return np.stack([-x[:, 1], x[:, 0], np.zeros(len(x))], axis=1)
+
+
+def test_damping_matrix_is_objective_and_positive():
+    """K_n on a turned configuration does not damp a rigid spin (K0 on the reference one
+    does: the reason K_n replaced it), and stays positive semi-definite when sheared."""
+    mesh, model, _ = _bar()
+    c, s = np.cos(1.0), np.sin(1.0)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    x = mesh.nodes @ R.T
+    v = _spin(x)[model.elasticity.bricks].reshape(-1, 24)
+    k_n = passive_tangent(model.elasticity, x - mesh.nodes)
+    k_0 = passive_tangent(model.elasticity)
+    scale = np.abs(k_0).max() * np.abs(v).max()
+    assert np.abs(np.einsum("mij,mj->mi", k_n, v)).max() < 1e-9 * scale
+    assert np.abs(np.einsum("mij,mj->mi", k_0, v)).max() > 1e-2 * scale
+    sheared = mesh.nodes.copy()
+    sheared[:, 0] += 0.4 * mesh.nodes[:, 2]
+    w = np.linalg.eigvalsh(passive_tangent(model.elasticity, sheared - mesh.nodes))
+    assert w.min() > -1e-9 * w.max()
+
+
+def test_held_activation_settles_on_the_static_equilibrium():
+    """OOP + BUC held at 0.5 on the coarse face (no contact): the transient state reaches
+    the static equilibrium within 0.3 s (with beta K0 it crept, 3.3 mm away after 10 s)."""
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    from solver.stability import lip_outputs, scene_dict
+    sc = scene_dict("held", ("OOP", "BUC"))
+    sim = Simulation(parse_scene(sc))
+    sc["scene"]["analysis"] = "static"
+    static = Simulation(parse_scene(sc), loaded_anatomy=sim.anatomy)
+    acts = {"OOP": 0.5, "BUC": 0.5}
+    static.set_activations(acts)
+    assert static.step(1.0).converged
+    sim.set_activations(acts)
+    for k in range(30):
+        assert sim.step(0.01 * (k + 1)).converged
+    now, target = lip_outputs(sim), lip_outputs(static)
+    assert abs(target["lip_protrusion"]) > 5.0             # a large motion
+    assert max(abs(now[k] - target[k]) for k in now) < 0.02

@@ -4,28 +4,36 @@ Mass: lumped, the row sums of the consistent brick mass matrix,
 m_a = rho sum_e sum_g N_a(xi_g) det J_g w_g (positive for trilinear bricks and wedges),
 so M is diagonal: cheap, and no spurious coupling through the mass.
 
-Damping: C = alpha M + beta K0 with K0 the tangent of the passive tissue at the reference
-state, assembled once. A constant, symmetric, positive semi-definite C dissipates energy
-at every state (P = v^T C v >= 0), costs no assembly per iteration and keeps the tangent
-symmetric. The current tangent would follow stiffening and large strains, but it can
-lose definiteness (and with it the guarantee of dissipation) and must be rebuilt each
-iteration; with alpha = 40 1/s, beta = 0.03 s every mode is overdamped anyway.
+Damping: C = alpha M + beta K_n with K_n the tangent of the passive tissue at zero strain
+on the configuration x_n = X + u_n at the start of the substep: the small-strain stiffness
+of the current shape (updated Lagrangian), K_n = sum_e int B_n^T D B_n dv_n. It is
+symmetric and positive semi-definite at every state (P = v^T C v >= 0) and objective: a
+rigid rotation of the tissue is not damped, and an isochoric motion of the deformed tissue
+meets the shear modulus, not the bulk one. The rest tangent K0 (beta K0 v) is not: where the
+tissue has turned, K0 reads part of an isochoric rate as a volume change and resists it with
+the bulk modulus (2/d = 500 times the shear modulus), and the face crept towards its static
+equilibrium over tens of seconds instead of settling within 0.5 s (OOP + BUC held at 0.5,
+no contact: 3.3 mm from it after 10 s). K_n is rebuilt when a node has moved more than
+``refresh`` (mm) since the last build, once per substep at most, and is held fixed within
+the substep, so the step stays a linear damper: r += C (u - u_n) / h, K += C / h. Passive:
+the stiffening of active muscle does not raise the damping. The current full tangent would
+follow stiffening, but it can lose definiteness (and with it dissipation) under compression
+and contact; with alpha = 40 1/s and beta = 0.03 s every mode is overdamped anyway.
 
 The integrator (solver.transient) gives each term the step h and the start state
 (u_n, v_n) through ``prepare``; in terms of u = u_{n+1} the backward Euler increments are
 
     Inertia:  r += M (u - u_n - h v_n) / h^2,   K += M / h^2,
               Psi = (u - u_n - h v_n)^T M (u - u_n - h v_n) / (2 h^2)
-    Damping:  r += C (u - u_n) / h,             K += C / h,
+    Damping:  r += C (u - u_n) / h,             K += C / h,       (C built on x_n)
               Psi = (u - u_n)^T C (u - u_n) / (2 h)
 """
 
 import numpy as np
-import scipy.sparse as sp
 
-from ..assembly import block_dofs
-from ..element import N_GP
+from ..element import N_GP, reference_geometry
 from ..kernels.brick import brick_forces
+from ..kernels.scatter import scatter_matrices
 from .base import Term
 
 
@@ -59,48 +67,71 @@ class Inertia(Term):
         return 0.5 * float(self.m3 @ (v.ravel() ** 2))
 
 
-def passive_tangent(elasticity, ndof):
-    """K0: the elasticity term's tangent at u = 0, as a CSR matrix (ndof, ndof)."""
+def passive_tangent(elasticity, u=None):
+    """Element tangents (m, 24, 24) of the elasticity term's bricks at zero strain on the
+    configuration X + u (u (n, 3), default 0: the reference one)."""
     m = len(elasticity.bricks)
+    nodes = elasticity.mesh.nodes if u is None else elasticity.mesh.nodes + u
+    det, dndx = reference_geometry(nodes, elasticity.bricks)
     fe, ke = np.empty((m, 24)), np.empty((m, 24, 24))
-    brick_forces(np.zeros((ndof // 3, 3)), elasticity.bricks, elasticity._dndX, elasticity._w,
-                 elasticity.params, elasticity.form, True, fe, ke, np.empty(m), np.empty(m))
-    d = block_dofs(elasticity.bricks)
-    rows = np.repeat(d, 24, axis=1).ravel()
-    cols = np.tile(d, (1, 24)).ravel()
-    K = sp.csr_matrix((ke.ravel(), (rows, cols)), shape=(ndof, ndof))
-    K.sum_duplicates()
-    return K
+    brick_forces(np.zeros_like(nodes), elasticity.bricks, np.ascontiguousarray(dndx),
+                 np.ascontiguousarray(det), elasticity.params, elasticity.form, True, fe, ke,
+                 np.empty(m), np.empty(m))
+    return ke
 
 
 class Damping(Term):
-    """C v with C = alpha M + beta K0 (K0 from ``passive_tangent``)."""
+    """C v with C = alpha M + beta K_n (see the module docstring).
+
+    mass3 (3 n,) lumped masses per DOF; elasticity: the passive tissue term whose bricks and
+    law give K_n; refresh (mm): largest node motion before K_n is rebuilt.
+    """
 
     name = "damping"
 
-    def __init__(self, mass3, alpha, beta, K0):
+    def __init__(self, mass3, alpha, beta, elasticity, refresh=0.0):
         self.alpha, self.beta = alpha, beta
-        self.m3, self.K0 = mass3, K0.tocoo()
-        self._K0csr = K0.tocsr()
-        self._pattern, self._idx = None, None
+        self.m3, self.elasticity, self.refresh = mass3, elasticity, refresh
+        self.u_geom = None              # (n, 3) the configuration K_n was built on
+        self._pattern, self._kdata = None, None
         self.h = None
+        self.builds = 0
+
+    def blocks(self):
+        return [self.elasticity.bricks]
 
     def prepare(self, h, u_n, v_n):
         self.h, self.u_n = h, u_n.ravel().copy()
 
+    def _update(self, pattern, block):
+        """Rebuild K_n (CSR data over pattern) when the start state moved > refresh."""
+        u_n = self.u_n.reshape(-1, 3)
+        stale = (self._pattern is not pattern or self.u_geom is None
+                 or np.abs(u_n - self.u_geom).max() > self.refresh)
+        if not stale or self.beta == 0.0:
+            self._pattern = pattern
+            return
+        self._kdata = np.zeros(pattern.nnz)
+        scatter_matrices(passive_tangent(self.elasticity, u_n), pattern.index[block],
+                         self._kdata)
+        self._pattern, self.u_geom = pattern, u_n.copy()
+        self.builds += 1
+
     def force(self, v):
-        """C v (3 n,) for a velocity v."""
+        """C v (3 n,) for a velocity v (3 n,), with the C of the last assembly."""
         v = v.ravel()
-        return self.alpha * self.m3 * v + self.beta * (self._K0csr @ v)
+        f = self.alpha * self.m3 * v
+        if self.beta and self._kdata is not None:
+            f += self.beta * (self._pattern.matrix(self._kdata) @ v)
+        return f
 
     def assemble(self, state, asm, block_ids):
+        self._update(asm.pattern, block_ids[0])
         v = (state.u.ravel() - self.u_n) / self.h
         f = self.force(v)
         asm.residual += f
         asm.energy += 0.5 * self.h * float(v @ f)
         if asm.need_k:
-            if self._pattern is not asm.pattern:
-                self._pattern = asm.pattern
-                self._idx = asm.pattern.locate(self.K0.row, self.K0.col)
             asm.add_diagonal(self.alpha * self.m3 / self.h)
-            asm.data[self._idx] += (self.beta / self.h) * self.K0.data
+            if self.beta:
+                asm.data += (self.beta / self.h) * self._kdata
