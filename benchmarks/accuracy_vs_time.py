@@ -6,16 +6,21 @@
                                           [--replot DIR]
 
 Scene (`gesture`): transient, the generic face, teeth and lip contact on. LLSAN and DLI
-open the lips (0 to 0.8 over 0-0.1 s), then OOP and RIS round and retract them (OOP 0 to
-0.6, RIS 0 to 0.5 over 0.1-0.2 s), held to 0.3 s; lip aperture and protrusion recorded
-every 10 ms. The lips stay apart (aperture 0.4 mm at rest, then opening), so lip/lip
+open the lips (0 to 0.8 over 0-0.04 s), then OOP and RIS round and retract them (OOP 0 to
+0.6, RIS 0 to 0.5 over 0.04-0.08 s), held to 0.1 s; lip aperture and protrusion recorded
+every 5 ms. The lips stay apart (aperture 0.4 mm at rest, then opening), so lip/lip
 contact is built and searched but never closes; the lips press on the teeth. (A closing
 gesture would clamp the aperture at 0, which hides its error.)
 
 Runs (each an independent task of benchmarks.sweep; the default sweep):
-* level study at TIGHT tolerances: coarse, medium, paper and fine half faces; the fine
-  one is the reference run of every generic-face run;
-* each level at the scene defaults (DEFAULT), and coarse, medium, paper at LOOSE ones;
+* level study at TIGHT tolerances: coarse, medium, paper and fine half faces, all with
+  two brick rows per layer through the thickness (rows = 2, the fine level's own), so
+  that the levels refine the mesh in the plane alone; the fine one is the reference run
+  of every generic-face run. (The levels' own meshes refine unevenly: one row per layer
+  up to paper, two at fine; against fine their errors did not fall monotonically.)
+* coarse, medium and paper with their own rows (one per layer, the paper's) at the scene
+  defaults (DEFAULT) and at LOOSE ones: what the thickness resolution costs in error;
+  fine at DEFAULT;
 * LOOSE one part at a time on the medium half face (substep_tol 1e-2 mm; max_substep
   1e-2 s, the record interval, which bounds the substeps anyway; newton_rtol 1e-4); full
   face, formulation "full" and stiffening off on the coarse and medium half faces;
@@ -40,7 +45,8 @@ squares in log-log over them (the reference's own error is left out, so p is opt
 as the levels near it).
 
 --quick: the sweep shrunk to run in under 3 minutes: 0.05 s of the gesture (the opening),
-the level study at the DEFAULT tolerances against the paper half face (their time-stepping
+the level study at the DEFAULT tolerances and the levels' own rows against the paper
+half face (their time-stepping
 and Newton error, 0.004 mm on the fine face against TIGHT in the default sweep over 0.05 s,
 is under a tenth of the smallest error measured here), LOOSE runs, and full face, formulation "full" and stiffening off on the coarse face
 only; no fine level, no reference face. Exits with status 1 unless the error falls as the
@@ -70,15 +76,16 @@ REFERENCE_FACE = Path(os.environ.get(
     "FACEFMU_REFERENCE_FACE",
     Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
 LEVELS = ("coarse", "medium", "paper", "fine")
-KNOBS = ("anatomy", "level", "half", "substep_tol", "max_substep", "newton_rtol",
+KNOBS = ("anatomy", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
          "formulation", "stiffening")
 # the Scene defaults, written out so that every row of the table says what it ran
-DEFAULT = dict(anatomy="generic", level="paper", half=True, substep_tol=1e-3,
+DEFAULT = dict(anatomy="generic", level="paper", rows=None, half=True, substep_tol=1e-3,
                max_substep=5e-3, newton_rtol=1e-6, formulation="mean_dilatation",
                stiffening=True)
 TIGHT = dict(substep_tol=2.5e-4, max_substep=2.5e-3, newton_rtol=1e-8)
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
-GESTURE_DURATION = 0.3     # s
+GESTURE_DURATION = 0.1     # s
+STUDY_ROWS = 2             # brick rows per layer of the level study
 QUICK_DURATION = 0.05      # s
 
 
@@ -92,14 +99,23 @@ def gesture(duration=GESTURE_DURATION, contact=True):
                       "description": "LLSAN + DLI open the lips, then OOP + RIS"},
             "muscles": {"driven": ["LLSAN", "DLI", "OOP", "RIS"]},
             "effects": {"lip_contact": contact, "teeth_contact": contact},
-            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.01},
-            "schedule": [_ramp("LLSAN", 0.0, 0.1, 0.8), _ramp("DLI", 0.0, 0.1, 0.8),
-                         _ramp("OOP", 0.1, 0.2, 0.6), _ramp("RIS", 0.1, 0.2, 0.5)]}
+            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.005},
+            "schedule": [_ramp("LLSAN", 0.0, 0.04, 0.8), _ramp("DLI", 0.0, 0.04, 0.8),
+                         _ramp("OOP", 0.04, 0.08, 0.6), _ramp("RIS", 0.04, 0.08, 0.5)]}
+
+
+def with_rows(knobs):
+    """knobs with rows written out: a generic face's rows None is its level's own."""
+    from solver.anatomy.generic import LEVELS as MESHES
+
+    if knobs["anatomy"] == "generic" and knobs.get("rows") is None:
+        return {**knobs, "rows": MESHES[knobs["level"]][1]}
+    return knobs
 
 
 def spec(label, ref, **knobs):
     """A run: its label, the label of its reference run (None: it is one), every KNOB."""
-    return {"label": label, "ref": ref, **DEFAULT, **knobs}
+    return with_rows({"label": label, "ref": ref, **DEFAULT, **knobs})
 
 
 def sweep_specs(quick=False, reference_face=None):
@@ -107,9 +123,10 @@ def sweep_specs(quick=False, reference_face=None):
     if quick:       # level study at the DEFAULT tolerances, paper the reference
         levels, ref = LEVELS[:3], "paper"
         runs = [spec(lv, None if lv == "paper" else ref, level=lv) for lv in levels]
-    else:           # level study at TIGHT tolerances, fine the reference
+    else:           # level study at TIGHT tolerances and STUDY_ROWS, fine the reference
         levels, ref = LEVELS, "fine tight"
-        runs = [spec(f"{lv} tight", None if lv == "fine" else ref, level=lv, **TIGHT)
+        runs = [spec(f"{lv} tight" if lv == "fine" else f"{lv} {STUDY_ROWS} rows tight",
+                     None if lv == "fine" else ref, level=lv, rows=STUDY_ROWS, **TIGHT)
                 for lv in levels]
         runs += [spec(lv, ref, level=lv) for lv in levels]
     runs += [spec(f"{lv} loose", ref, level=lv, **LOOSE) for lv in levels[:-1]]
@@ -150,7 +167,7 @@ def preset_specs(runs, ref):
     out = []
     ref_level = next(r["level"] for r in runs if r["label"] == ref)
     for name in FIDELITIES:
-        knobs = {**DEFAULT, **PRESETS[name]}
+        knobs = with_rows({**DEFAULT, **PRESETS[name]})
         if LEVELS.index(knobs["level"]) > LEVELS.index(ref_level):
             continue
         if not any(all(r[k] == knobs[k] for k in KNOBS) for r in runs):
@@ -161,7 +178,7 @@ def preset_specs(runs, ref):
 def _cost_guess(s):
     """A rough relative cost of a run, to start the long ones first."""
     size = 12.0 if s["anatomy"] != "generic" else \
-        {"coarse": 1, "medium": 2.5, "paper": 12, "fine": 150}[s["level"]]
+        {"coarse": 1, "medium": 2.5, "paper": 12, "fine": 75}[s["level"]] * s["rows"]
     return size * (1 if s["half"] else 2.5) * (1e-3 / s["substep_tol"]) ** 0.5
 
 
@@ -225,7 +242,7 @@ def mark_presets(table):
     from solver.fidelity import FIDELITIES, PRESETS
 
     for name in FIDELITIES:
-        knobs = {**DEFAULT, **PRESETS[name]}
+        knobs = with_rows({**DEFAULT, **PRESETS[name]})
         for r in table:
             if r["anatomy"] == "generic" and all(r[k] == knobs[k] for k in KNOBS):
                 r["preset"] = name
@@ -324,7 +341,7 @@ def plot(table, path, title, cost="wall_s"):
     plt.close(fig)
 
 
-COLUMNS = ["label", "level", "half", "substep_tol", "max_substep", "newton_rtol",
+COLUMNS = ["label", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
            "formulation", "stiffening", "ndof", "h_mm", "wall_s", "cpu_s", "rtf", "peak_mb",
            "err_aperture_mm", "err_protrusion_mm", "err_mm", "pareto", "preset",
            "reference", "anatomy", "error"]
@@ -344,7 +361,7 @@ def read_table(path):
                     continue
                 if k in ("half", "stiffening", "pareto"):
                     v = v == "True"
-                elif k == "ndof":
+                elif k in ("ndof", "rows"):
                     v = int(float(v))
                 elif k not in ("label", "level", "formulation", "preset", "reference",
                                "anatomy", "error"):

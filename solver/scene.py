@@ -17,6 +17,8 @@ recorded outputs and, for standalone runs, activation schedules.
     source = "generic"              # "generic" or an ANSYS face folder
     level = "coarse"                # coarse | medium | paper | fine (generic face)
     half = true                     # x <= 0 with u_x = 0 on the mid-sagittal plane
+    rows = 2                        # optional: brick rows per layer (generic face; 1-4;
+                                    # default the level's: 1, 2 at 'fine')
 
     [muscles]
     driven = ["OOP", "OOM"]         # default: all ten
@@ -121,6 +123,7 @@ class Scene:
     anatomy: str = "generic"
     level: str = "coarse"
     half: bool = True
+    rows: int = None
     driven: tuple = MUSCLE_NAMES
     force_scale: dict = field(default_factory=dict)
     inertia: bool = True
@@ -199,6 +202,14 @@ def _number(lo=None, hi=None, strict_lo=False):
     return check
 
 
+def _integer(lo, hi):
+    def check(v):
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise ValueError(f"{v!r} is not an integer from {lo} to {hi}")
+        return v
+    return check
+
+
 def _string(v):
     if not isinstance(v, str):
         raise ValueError(f"{v!r} is not a string")
@@ -233,7 +244,7 @@ SECTIONS = {
               "duration": ("duration", _number(0.0, strict_lo=True)),
               "fidelity": ("fidelity", _choice(FIDELITIES))},
     "anatomy": {"source": ("anatomy", _string), "level": ("level", _choice(LEVELS)),
-                "half": ("half", _bool)},
+                "half": ("half", _bool), "rows": ("rows", _integer(1, 4))},
     "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales)},
     "effects": {"inertia": ("inertia", _bool), "damping": ("damping", _bool),
                 "stiffening": ("stiffening", _bool), "lip_contact": ("lip_contact", _bool),

@@ -59,7 +59,7 @@ class Simulation:
             scene = apply_fidelity(scene, fidelity)
         self.scene = scene.with_overrides(**overrides) if overrides else scene
         sc = self.scene
-        self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half)
+        self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half, sc.rows)
         props = MuscleProperties(force_scale={m: sc.force_scale.get(m, 1.0)
                                               for m in MUSCLE_NAMES},
                                  stiffening_rule=sc.stiffening_rule)

@@ -338,3 +338,20 @@ def test_half_face(paper, half):
     for k in ("upper_lip", "lower_lip"):
         assert len(half.contact_surfaces[k])
     assert len(half.rigid_surfaces["upper_teeth"].triangles)
+
+
+def test_rows_refine_through_the_thickness_only():
+    from solver.anatomy.load import load_anatomy
+    from solver.errors import ParameterError
+    from solver.scene import SceneError, parse_scene
+    one, two = (load_anatomy("generic", "coarse", True, rows=r) for r in (1, 2))
+    assert two.mesh.n_bricks == 2 * one.mesh.n_bricks
+    assert two.mesh.volumes.sum() == pytest.approx(one.mesh.volumes.sum(), rel=1e-12)
+    for set_name in ("layer_inner", "layer_middle", "layer_outer"):
+        assert len(two.mesh.element_sets[set_name]) == 2 * len(one.mesh.element_sets[set_name])
+    assert parse_scene({"anatomy": {"rows": 3}}).rows == 3
+    for bad in (0, 5, 1.5, True):
+        with pytest.raises((ParameterError, SceneError), match="rows"):
+            parse_scene({"anatomy": {"rows": bad}})
+        with pytest.raises(ParameterError, match="rows"):
+            load_anatomy("generic", "coarse", True, rows=bad)

@@ -39,7 +39,8 @@ touch. Lip edges are free.
 Layers. Each surface cell is extruded through the thickness into three layers of bricks:
 'layer_inner' (w 0-0.45) and 'layer_middle' (0.45-0.82), the hypodermis where the muscles
 run, and 'layer_outer' (0.82-1), epidermis and dermis; each layer one brick row, two at
-the 'fine' level. Bricks are ordered I..L on the skull side, M..P on the skin side;
+the 'fine' level (``rows`` sets it at any level: the convergence study of
+benchmarks/accuracy_vs_time.py refines in the plane and through the thickness apart). Bricks are ordered I..L on the skull side, M..P on the skin side;
 wedges repeat K = L and O = P.
 
 Muscles and teeth (generic_muscles). Ten muscles per side with the fibre and cable counts
@@ -76,6 +77,7 @@ from .half import half_anatomy
 
 # level -> (target element size away from the lips (mm), brick rows per layer)
 LEVELS = {"coarse": (9.0, 1), "medium": (6.0, 1), "paper": (4.05, 1), "fine": (2.7, 2)}
+MAX_ROWS = 4
 LAYERS = (("layer_inner", 0.45), ("layer_middle", 0.82), ("layer_outer", 1.0))
 
 
@@ -156,12 +158,16 @@ def _contact_surfaces(mesh, grid):
     return out
 
 
-def generic_face(level="coarse", half=False):
+def generic_face(level="coarse", half=False, rows=None):
     """The generic face at a mesh level ('coarse', 'medium', 'paper', 'fine'); half=True
-    keeps x <= 0 (see the module docstring). Returns an Anatomy named 'generic'."""
+    keeps x <= 0 (see the module docstring); rows: brick rows per layer through the
+    thickness (1 to MAX_ROWS; default the level's). Returns an Anatomy named 'generic'."""
     if level not in LEVELS:
         raise ParameterError(f"level {level!r} is not one of {list(LEVELS)}")
-    h, rows = LEVELS[level]
+    h, level_rows = LEVELS[level]
+    rows = level_rows if rows is None else rows
+    if isinstance(rows, bool) or not isinstance(rows, int) or not 1 <= rows <= MAX_ROWS:
+        raise ParameterError(f"rows = {rows!r} must be an integer from 1 to {MAX_ROWS}")
     grid = generic_grid.surface_grid(h)
     w, layer_names = _thickness_levels(rows)
     nodes, bricks = _extrude(grid, w)
