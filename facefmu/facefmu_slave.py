@@ -32,8 +32,8 @@ from solver.fidelity import FIDELITIES, fidelity_overrides
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
-    "lip_aperture": "gap between upper and lower lip in the mid-sagittal plane (z distance "
-                    "of the lip edges), 0 when they touch",
+    "lip_aperture": "gap between upper and lower lip in the mid-sagittal plane (smallest "
+                    "distance between the lip contours), 0 when they touch",
     "lip_protrusion": "forward (+y) displacement of the lips from rest: mean of the upper "
                       "and lower lip front points",
     "lip_width": "distance between the mouth corners",

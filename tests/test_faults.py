@@ -23,7 +23,7 @@ from solver.anatomy.ansys import _read_elements, _read_nodes, load_ansys_face
 from solver.errors import FaceFMUError, MeshError, MeshFileError
 from solver.scene import Scene, SceneError, load_scene
 from solver.simulation import BUILTIN_DIR, Simulation
-from test_fmu import SCRIPTS, fmu  # noqa: F401  (the session's built FMU)
+from conftest import SCRIPTS, exit_crash_is_known
 
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
                            Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -333,7 +333,7 @@ def test_a_shared_fallback_folder_someone_else_could_write_is_not_used(tmp_path,
 
 # ---------------------------------------------------------------------- through the FMU
 
-def test_fmu_reset_reinstantiation_free_instance_and_bad_parameters(fmu, tmp_path):  # noqa: F811
+def test_fmu_reset_reinstantiation_free_instance_and_bad_parameters(fmu, tmp_path):
     bad_scene = tmp_path / "bad.toml"
     bad_scene.write_text(BAD_SCENES["unclosed table"])
     bad_face = tiny_face(tmp_path / "face", nodes=TINY_FAULTS["letter in y"][0]["nodes"])
@@ -359,13 +359,3 @@ def test_fmu_reset_reinstantiation_free_instance_and_bad_parameters(fmu, tmp_pat
         assert needle in run.stdout, needle                    # each logged, named
     assert res["then3"] == ref                                 # and a new instance works
     exit_crash_is_known(run)
-
-
-def exit_crash_is_known(run):
-    """A process that finished its FMU work ("ok" printed) and then crashed while the
-    interpreter shut down: the known heap corruption at exit of processes that instantiated
-    a pythonfmu FMU many times (NTNU-IHB/PythonFMU#228; here about 1 run in 4 with a dozen
-    instances, 3 in 8 with 60, none with one-variable pythonfmu FMUs), shown as xfail."""
-    if run.returncode != 0:
-        pytest.xfail(f"the fmpy process crashed at exit (code {run.returncode}) after "
-                     "finishing: known pythonfmu heap corruption at interpreter exit")

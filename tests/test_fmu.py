@@ -11,23 +11,10 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 import zipfile
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = Path(__file__).parent / "fmu_scripts"
-
-
-@pytest.fixture(scope="session")
-def fmu(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("fmu")
-    run = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)],
-                         capture_output=True, text=True, cwd=tmp_path_factory.getbasetemp())
-    assert run.returncode == 0, run.stderr
-    path = dest / "FaceFMU.fmu"
-    assert path.is_file()
-    return path
+from conftest import ROOT, SCRIPTS
 
 
 def _run(script, fmu, tmp_path, *args, timeout=600):
@@ -37,7 +24,7 @@ def _run(script, fmu, tmp_path, *args, timeout=600):
     if run.returncode < 0 and run.stdout.rstrip().endswith("ok") and out.is_file():
         # finished its FMU work, then crashed while the interpreter shut down: the heap
         # corruption at exit of processes that instantiated pythonfmu FMUs (seen about 1 run
-        # in 10 here; tests/test_faults.py::exit_crash_is_known)
+        # in 10 here; tests/conftest.py::exit_crash_is_known)
         pytest.xfail(f"the fmpy process crashed at exit (code {run.returncode}) after "
                      f"finishing: {run.stderr.strip()[-200:]}")
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-4000:]

@@ -21,8 +21,7 @@ from solver import stability as S
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.simulation import Simulation
 from solver.transient import StepStats
-from test_faults import exit_crash_is_known
-from test_fmu import SCRIPTS, fmu  # noqa: F401  (the session's built FMU)
+from conftest import SCRIPTS, exit_crash_is_known
 
 QUICK = {c.name: c for c in S.cases(full=False)}
 _runs = {}
@@ -64,7 +63,7 @@ def test_halving_every_substep_changes_the_outputs_little():
     assert 0 < change <= S.halving_limit(run)
 
 
-def test_quick_cases_through_the_fmu(fmu, tmp_path):  # noqa: F811
+def test_quick_cases_through_the_fmu(fmu, tmp_path):
     import subprocess
     import sys
     names = ["oop_buc_contact", "tiny_steps", "huge_steps", "rest_1ms_steps", "refusal"]
