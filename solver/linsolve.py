@@ -4,8 +4,22 @@
 ``pardiso``  Intel MKL PARDISO through pypardiso (x86_64 wheels on PyPI), symmetric
 ``auto``     the fastest available, by benchmarks/linear_solvers.py on this project's
              matrices: pardiso where importable, else superlu.
+
+Reuse: a solver counts its factorizations and keeps a tag of what its current one was
+made for (``refactor(K, tag)``; ``tag`` None: no valid factorization), so that Newton
+(solver.newton, ``NewtonOptions.reuse``) can solve with the factorization of an earlier
+tangent as long as that converges fast enough.
+
+BLAS threads: ``single_threaded_blas()`` runs a block with every OpenBLAS loaded in the
+process at one thread and restores the caller's setting after. OpenBLAS threads its
+level-1 routines above about 10^4 entries, so numpy's dot products and norms of Newton's
+vectors ran on two threads, which next to numba's workers and another process on this
+2-core machine took 8 ms for a 13308-entry dot against 2 us on one thread (half the wall
+time of a transient run of the generic paper face went there).
 """
 
+import contextlib
+import ctypes
 import os
 
 import numpy as np
@@ -20,7 +34,67 @@ from .errors import ParameterError
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 
-class SuperLU:
+def _openblas_threads():
+    """[(get, set)] ctypes functions of each OpenBLAS library loaded in this process
+    (found in /proc/self/maps on Linux; elsewhere none), computed once."""
+    global _OPENBLAS
+    if _OPENBLAS is None:
+        _OPENBLAS = []
+        try:
+            with open("/proc/self/maps") as fh:
+                paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower()}
+        except OSError:
+            paths = set()
+        for path in sorted(paths):
+            try:
+                lib = ctypes.CDLL(path)
+            except OSError:
+                continue
+            for prefix in ("scipy_", ""):
+                for suffix in ("64_", ""):
+                    get = getattr(lib, f"{prefix}openblas_get_num_threads{suffix}", None)
+                    put = getattr(lib, f"{prefix}openblas_set_num_threads{suffix}", None)
+                    if get is not None and put is not None:
+                        _OPENBLAS.append((get, put))
+    return _OPENBLAS
+
+
+_OPENBLAS = None
+
+
+@contextlib.contextmanager
+def single_threaded_blas():
+    """Run the block with one OpenBLAS thread; the caller's thread counts after."""
+    libs = _openblas_threads()
+    before = [get() for get, _ in libs]
+    for _, put in libs:
+        put(1)
+    try:
+        yield
+    finally:
+        for (_, put), n in zip(libs, before):
+            put(n)
+
+
+class _Reusable:
+    """Counting and tagging of factorizations, shared by the solvers."""
+
+    factorizations = 0          # how many factorize() calls so far
+    tag = None                  # what the current factorization was made for (None: none)
+
+    def refactor(self, K, tag):
+        """Factorize K and remember tag (what it was made for: Newton's (reduction, key))."""
+        self.tag = None
+        self.factorize(K)
+        self.factorizations += 1
+        self.tag = tag
+
+    def invalidate(self):
+        """Forget the current factorization (the next Newton iteration makes a new one)."""
+        self.tag = None
+
+
+class SuperLU(_Reusable):
     name = "superlu"
 
     def factorize(self, K):
@@ -37,25 +111,56 @@ class SuperLU:
         return self._lu.solve(b)
 
 
-class Pardiso:
+class Pardiso(_Reusable):
     """MKL PARDISO, real symmetric indefinite (mtype -2) on the upper triangle; the
-    symbolic analysis (ordering) is done once per sparsity pattern and reused."""
+    symbolic analysis (ordering) is done once per sparsity pattern and reused, and so is
+    the gather of the upper triangle from K's CSR data when K comes with the same index
+    arrays (as solver.assembly.Reduction.matrix gives them)."""
 
     name = "pardiso"
 
     def __init__(self):
         import pypardiso
         self._p = pypardiso.PyPardisoSolver(mtype=-2)
+        # iterative refinement only after perturbed pivots (MKL's own default, iparm(8) = 0):
+        # pypardiso asks for two steps at every solve, which the reused factorizations of
+        # solver.newton pay at each iteration (same solution to 1e-12 on the face tangents)
+        self._p.set_iparm(8, 0)
         self._pattern = None
         self._U = None
+        self._source = None         # (indptr, indices) of the K the gather was made for
+        self._upper = None          # data indices of K's upper triangle, in U's order
 
     def _phase(self, phase, b):
         self._p.set_phase(phase)
         return self._p._call_pardiso(self._U, b)
 
-    def factorize(self, K):
-        U = sp.triu(sp.csr_matrix(K), format="csr")
+    def _same_pattern(self, K):
+        src = self._source
+        return src is not None and K.shape == src[0] and np.array_equal(K.indptr, src[1]) \
+            and np.array_equal(K.indices, src[2])
+
+    def _gather(self, K):
+        """U (upper triangle of K, sorted CSR), by the cached gather where K has the
+        pattern of the last one; else the gather is built (K's entries numbered, the
+        numbers' upper triangle taken)."""
+        if self._same_pattern(K):
+            self._U.data = K.data[self._upper]
+            return self._U
+        if not K.has_canonical_format:
+            K = K.copy()
+            K.sum_duplicates()
+        marker = sp.csr_matrix((np.arange(K.nnz, dtype=np.float64) + 1.0, K.indices,
+                                K.indptr), shape=K.shape)
+        U = sp.triu(marker, format="csr")
         U.sort_indices()
+        self._upper = U.data.astype(np.int64) - 1
+        U.data = K.data[self._upper]
+        self._source = (K.shape, K.indptr.copy(), K.indices.copy())
+        return U
+
+    def factorize(self, K):
+        U = self._gather(sp.csr_matrix(K))
         self._U = U
         if not np.all(np.diff(U.indptr)):
             raise RuntimeError("matrix is singular: an empty row")
@@ -74,7 +179,8 @@ class Pardiso:
         freeing it twice with phase -1 corrupted the heap)."""
         if self._pattern is not None:
             self._p.free_memory(everything=False)
-            self._pattern, self._U = None, None
+            self._pattern, self._U, self._source = None, None, None
+        self.tag = None
 
     def __del__(self):
         try:

@@ -143,6 +143,7 @@ class Model:
         """Load-stepped Newton from the current state to the current targets."""
         opts = options or self.newton_options
         sysm = self.system()
+        self.linear_solver.invalidate()     # Newton's reuse starts afresh: solves repeat exactly
         pres = sysm.prescribed
         p_target = np.array([self._target[d] for d in pres])
         u_start = self.u.ravel().copy()

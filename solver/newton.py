@@ -26,12 +26,36 @@ An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above
 larger of the first two residuals) or that stalls (not halved over ``stall_window``
 iterations, checked from iteration stall_window + 4 on) fails the step, and the caller
 cuts back.
+
+Factorization reuse (``reuse``; the default None: in calls with a key, i.e. the substeps
+of solver.transient, not in static solves, which keep full Newton): modified Newton.
+The update solves K(u_j) du_f = -r_f(u_k) with the factorization of the tangent at an
+earlier iterate u_j (j <= k, possibly of an earlier call on the same system: an earlier
+substep), which converges linearly, at a rate ||I - K(u_j)^-1 K(u_k)||, for as long as
+u_k stays close to u_j. The tangent is assembled and refactorized at u_k when
+
+    * there is no factorization for this system and key (the caller's parameters of
+      the tangent, e.g. the time step: first call, new constraints, another step
+      size, or the caller invalidated it), or
+    * convergence slowed: ||r_f(u_k)|| > refactor_ratio * ||r_f(u_{k-1})|| while the
+      force criterion does not hold yet (once it does, only the step must shrink below
+      utol, and the residual may sit at rounding), or
+    * prescribed DOFs move (du_p != 0; the right-hand side needs K_fp), or
+    * the reused direction is not one of descent (du . r >= 0 while the force criterion
+      does not hold; a positive definite K(u_j) gives du . r = -r K(u_j)^-1 r < 0).
+
+The convergence criteria, the line search and the failure tests are those above; on a
+reused factorization an iterate costs a residual and a solve (no tangent), and the
+line search's residual at the accepted step, when it was the last one evaluated, is the
+next iterate's. A failed solve invalidates the factorization. ``reuse = False`` is full
+Newton: the tangent assembled and factorized at every iterate.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .linsolve import single_threaded_blas
 from .terms.base import InvertedElement
 
 
@@ -44,6 +68,8 @@ class NewtonOptions:
     max_ls: int = 6
     diverge_factor: float = 1e6
     stall_window: int = 4
+    reuse: bool | None = None       # reuse factorizations; None: where the caller gives a key
+    refactor_ratio: float = 0.1     # refactorize when ||r_f|| fell by less than this factor
 
 
 @dataclass
@@ -52,19 +78,22 @@ class NewtonReport:
     iterations: int
     residuals: list = field(default_factory=list)   # ||r_f|| at each iterate
     reason: str = ""
+    factorizations: int = 0
 
 
 class NewtonFailure(Exception):
     pass
 
 
-def _direction(system, r, data, dup, free, prescribed, lin):
+def _direction(system, r, data, dup, lin):
+    """du with du_f = -K_ff^-1 (r_f + K_fp du_p) on the current factorization of lin
+    (data: the tangent's CSR data, needed only where du_p != 0)."""
+    free, prescribed = system.free, system.prescribed
     rhs = -r[free]
     if len(prescribed) and np.any(dup):
         full = np.zeros(system.ndof)
         full[prescribed] = dup
         rhs -= (system.pattern.matrix(data) @ full)[free]
-    lin.factorize(system.reduction.matrix(data))
     duf = lin.solve(rhs)
     du = np.zeros(system.ndof)
     du[free] = duf
@@ -72,19 +101,34 @@ def _direction(system, r, data, dup, free, prescribed, lin):
     return du
 
 
-def _trial(system, u, du, s):
-    """Residual at u + s du, or None where the state is not admissible."""
-    try:
-        return system.residual(u + s * du)
-    except InvertedElement:
-        return None
+class _Line:
+    """Residuals r(u + s du) along a direction; None where the state is not admissible.
+    Remembers the last point evaluated: the terms hold that state's outputs (contact
+    forces and gaps), so its residual can stand for the next iterate's only if it is
+    the accepted one."""
+
+    def __init__(self, system, u, du):
+        self.system, self.u, self.du = system, u, du
+        self.last = (None, None)
+
+    def __call__(self, s):
+        try:
+            r = self.system.residual(self.u + s * self.du)
+        except InvertedElement:
+            r = None
+        self.last = (s, r)
+        return r
+
+    def residual_at(self, s):
+        """r(u + s du) if s was the last point evaluated (and admissible), else None."""
+        return self.last[1] if self.last[0] == s else None
 
 
-def _admissible_fraction(system, u, du, opts):
+def _admissible_fraction(line, opts):
     """Largest s in 1, 1/2, 1/4, ... at which the state is admissible, or None."""
     s = 1.0
     for _ in range(opts.max_ls):
-        r = _trial(system, u, du, s)
+        r = line(s)
         if r is not None and np.all(np.isfinite(r)):
             return s
         s *= 0.5
@@ -95,12 +139,13 @@ def _g(du, r):
     return None if r is None or not np.all(np.isfinite(r)) else float(du @ r)
 
 
-def _line_search(system, u, du, r0, opts):
+def _line_search(line, r0, opts):
     """Step length s along du: 1 when acceptable, else a root of g(s) = du . r(u + s du)
     bracketed in (0, 1) by false position (Illinois), else the best s tried."""
+    du = line.du
     g0 = float(du @ r0)
     n0 = float(np.linalg.norm(r0))
-    r1 = _trial(system, u, du, 1.0)
+    r1 = line(1.0)
     g1 = _g(du, r1)
     if g1 is not None and abs(g1) <= 0.5 * abs(g0):
         return 1.0
@@ -109,7 +154,7 @@ def _line_search(system, u, du, r0, opts):
         for _ in range(opts.max_ls):    # backtrack while the residual grew (a kink)
             if float(np.linalg.norm(r)) <= n0:
                 return s
-            r = _trial(system, u, du, 0.5 * s)
+            r = line(0.5 * s)
             if _g(du, r) is None:       # keep the last admissible s
                 break
             s *= 0.5
@@ -120,7 +165,7 @@ def _line_search(system, u, du, r0, opts):
         hi *= 0.5
         if hi < 0.5 ** opts.max_ls:
             return None
-        ghi = _g(du, _trial(system, u, du, hi))
+        ghi = _g(du, line(hi))
         if ghi is not None and (abs(ghi) <= 0.5 * abs(g0) or ghi * g0 > 0):
             return hi
     best = (hi, abs(ghi))
@@ -129,7 +174,7 @@ def _line_search(system, u, du, r0, opts):
         s = hi - ghi * (hi - lo) / (ghi - glo)
         if not lo < s < hi:
             s = 0.5 * (lo + hi)
-        g = _g(du, _trial(system, u, du, s))
+        g = _g(du, line(s))
         if g is None:                   # inadmissible inside the bracket: shrink from above
             hi = s
             continue
@@ -150,25 +195,53 @@ def _line_search(system, u, du, r0, opts):
     return best[0]
 
 
-def newton(system, u0, targets, lin, opts):
+def newton(system, u0, targets, lin, opts, key=None):
     """Solve system.residual(u) = 0 on the free DOFs with u[prescribed] = targets.
 
     system   has ndof, free, prescribed, pattern, reduction, assemble(u) -> (r, data),
              residual(u) -> r, external_scale() -> N
     u0       (ndof,) start; targets (len(prescribed),)
+    lin      a solver.linsolve solver (its factorization may be reused: opts.reuse)
+    key      what the tangent depends on besides u (the transient's step h): a
+             factorization is reused only by a call with the same system and key
     Returns (u, r, NewtonReport); u is None when the iteration failed, r the residual
-    (ndof,) at u (reactions on the prescribed DOFs).
+    (ndof,) at u (reactions on the prescribed DOFs). BLAS runs on one thread meanwhile.
     """
+    with single_threaded_blas():
+        if opts.reuse is None:
+            opts = replace(opts, reuse=key is not None)
+        u, r, report = _newton(system, u0, targets, lin, opts, (system.reduction, key))
+    if u is None:
+        lin.invalidate()
+    return u, r, report
+
+
+def _evaluate(system, u, need_k):
+    """(r, data or None) at u, or (None, reason) where the state is not admissible."""
+    try:
+        if need_k:
+            return system.assemble(u)
+        return system.residual(u), None
+    except InvertedElement as exc:
+        return None, str(exc)
+
+
+def _factorize(system, lin, data, tag, report):
+    lin.refactor(system.reduction.matrix(data), tag)
+    report.factorizations += 1
+
+
+def _newton(system, u0, targets, lin, opts, tag):
     u = u0.copy()
-    free, prescribed = system.free, system.prescribed
+    prescribed = system.prescribed
     report = NewtonReport(False, 0)
+    step_size = np.inf                      # of the last update (none yet)
+    r, data = _evaluate(system, u, not _reusable(lin, opts, tag))
     for it in range(opts.max_iter + 1):
-        try:
-            r, data = system.assemble(u)
-        except InvertedElement as exc:
-            report.reason = str(exc)
+        if r is None:
+            report.reason = data
             return None, None, report
-        rf = r[free]
+        rf = r[system.free]
         rn = float(np.linalg.norm(rf))
         report.residuals.append(rn)
         if not np.isfinite(rn):
@@ -176,7 +249,8 @@ def newton(system, u0, targets, lin, opts):
             return None, None, report
         dup = targets - u[prescribed]
         ref = max(float(np.linalg.norm(r[prescribed])), system.external_scale(), 1e-12)
-        if rn <= opts.rtol * ref + opts.atol and not np.any(dup) \
+        balanced = rn <= opts.rtol * ref + opts.atol
+        if balanced and not np.any(dup) \
                 and (it == 0 or step_size <= opts.utol):     # at it = 0: nothing to move
             report.converged = True
             return u, r, report
@@ -190,22 +264,47 @@ def newton(system, u0, targets, lin, opts):
             report.reason = (f"stalled (||r|| = {rn:.3g} N, not halved in "
                              f"{opts.stall_window} iterations)")
             return None, None, report
+        slow = it > 0 and not balanced and rn > opts.refactor_ratio * report.residuals[it - 1]
         try:
-            du = _direction(system, r, data, dup, free, prescribed, lin)
+            du, data = _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report)
         except RuntimeError as exc:           # singular factorization
             report.reason = f"linear solver failed: {exc}"
             return None, None, report
         if not np.all(np.isfinite(du)):
             report.reason = "linear solve gave a non-finite update (singular tangent?)"
             return None, None, report
-        if np.any(dup):
-            s = _admissible_fraction(system, u, du, opts)
-        else:
-            s = _line_search(system, u, du, r, opts)
+        line = _Line(system, u, du)
+        s = _admissible_fraction(line, opts) if np.any(dup) else _line_search(line, r, opts)
         if s is None:
             report.reason = "line search found no admissible state (elements invert)"
             return None, None, report
         u = u + s * du
         step_size = float(np.abs(s * du).max()) if len(du) else 0.0
         report.iterations = it + 1
+        r = line.residual_at(s) if opts.reuse else None
+        data = None
+        if r is None:
+            r, data = _evaluate(system, u, not opts.reuse)
     return None, None, report
+
+
+def _reusable(lin, opts, tag):
+    """Whether lin holds a factorization made for tag = (reduction, key)."""
+    return opts.reuse and lin.tag is not None and lin.tag[0] is tag[0] and lin.tag[1] == tag[1]
+
+
+def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report):
+    """(du, data): Newton's update at u, on a reused factorization where that is allowed
+    (module docstring; balanced: the force criterion holds, so that r is at the level of
+    rounding and du . r may have any sign), else on a new one of the tangent at u
+    (assembled if data is None: the residual is then evaluated again with it)."""
+    if _reusable(lin, opts, tag) and not slow and not np.any(dup):
+        du = _direction(system, r, None, dup, lin)
+        if np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
+            return du, data
+    if data is None:
+        r2, data = _evaluate(system, u, True)
+        if r2 is None:
+            raise RuntimeError(data)
+    _factorize(system, lin, data, tag, report)
+    return _direction(system, r, data, dup, lin), data

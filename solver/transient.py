@@ -19,6 +19,24 @@ between backward and forward Euler displacements; a substep is accepted when
 err <= tol, and the next step is h * clip(0.9 sqrt(tol / err), 0.3, 2), at most max_substep.
 A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
 the caller's step fails and the model goes back to its state at t0.
+
+Landing on t1: the remnant R - (n - 1) h of a caller step may be tiny, and the next
+caller step then starts from it. With ``even_steps`` the span left, R = t1 - t, is split
+into n = ceil(R / h) equal substeps of R / n <= h (each still error-controlled), and a
+step shortened to land does not shrink the next caller step's first substep. Off by
+default: on the gesture of benchmarks/fast_path.py it changed the substep sequence
+through the lip contact for the worse (more Newton iterations, no fewer substeps).
+
+Newton's start (warm start, ``predictor``): "velocity" u_n + h v_n (default), "quadratic"
+u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}) (the velocity extrapolated from the last two
+substeps of the same caller step; velocity for the first), "none" u_n. Where Newton fails
+from a predictor it is tried once more from u_n before the cutback. The predictor moves
+only the start of the iteration, not the converged u_{n+1} (to the Newton tolerance).
+"quadratic" took more Newton iterations than "velocity" on the reference face's gesture
+(benchmarks/fast_path.py, 0.02 s: 103 against 86), hence the default.
+Each caller step starts with a new factorization of the tangent (Newton reuses it over
+the substeps, solver.newton), so that a step repeated from the same state (an FMU
+rollback) repeats exactly.
 """
 
 from dataclasses import dataclass, field
@@ -26,9 +44,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ParameterError
+from .linsolve import single_threaded_blas
 from .newton import newton
 from .terms.inertia import Damping, Inertia
 from .units import TISSUE_DENSITY
+
+PREDICTORS = ("velocity", "quadratic", "none")
 
 
 @dataclass
@@ -40,6 +61,7 @@ class StepStats:
     newton_iterations: int = 0
     cutbacks: int = 0
     rejected: int = 0
+    factorizations: int = 0
     h_min: float = np.inf
     h_max: float = 0.0
     reason: str = ""
@@ -51,12 +73,13 @@ class Transient:
 
     density tonne/mm^3; alpha 1/s, beta s; inertia / damping: include the terms;
     tol: local error tolerance (mm); max_substep, min_substep (s); hold 'ramp' | 'step';
-    fixed_step: if set, substeps of exactly that size (no error control; tests of order).
+    fixed_step: if set, substeps of exactly that size (no error control; tests of order);
+    predictor 'velocity' | 'quadratic' | 'none' and even_steps: see the module docstring.
     """
 
     def __init__(self, model, density=TISSUE_DENSITY, alpha=40.0, beta=0.03, inertia=True,
                  damping=True, tol=1e-3, max_substep=5e-3, min_substep=1e-7, hold="ramp",
-                 max_cutbacks=8, fixed_step=None):
+                 max_cutbacks=8, fixed_step=None, predictor="velocity", even_steps=False):
         for name, v in (("density", density), ("alpha", alpha), ("beta", beta)):
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name} = {v!r} must be a finite number >= 0")
@@ -64,6 +87,9 @@ class Transient:
             raise ParameterError("need tol > 0 and 0 < min_substep <= max_substep")
         if hold not in ("ramp", "step"):
             raise ParameterError(f"hold = {hold!r} must be 'ramp' or 'step'")
+        if predictor not in PREDICTORS:
+            raise ParameterError(f"predictor = {predictor!r} must be one of {PREDICTORS}")
+        self.predictor, self.even_steps = predictor, even_steps
         self.model = model
         self.tol, self.max_substep, self.min_substep = tol, max_substep, min_substep
         self.hold, self.max_cutbacks, self.fixed_step = hold, max_cutbacks, fixed_step
@@ -106,19 +132,47 @@ class Transient:
                 term.assemble(st, asm, ids)
         return kin, asm.energy
 
-    def _substep(self, sysm, u_n, v_n, h, targets, opts):
+    def _predict(self, u_n, v_n, h, prev):
+        """Newton's start for the substep of size h from (u_n, v_n); prev: (v_{n-1},
+        h_{n-1}) of the same caller step, or None."""
+        if self.predictor == "none":
+            return u_n
+        if self.predictor == "quadratic" and prev is not None:
+            return u_n + h * (v_n + h * (v_n - prev[0]) / prev[1])
+        return u_n + h * v_n
+
+    def _substep(self, sysm, u_n, v_n, h, targets, opts, prev=None):
         for term in self.step_terms:
             term.prepare(h, u_n.reshape(-1, 3), v_n.reshape(-1, 3))
-        u, _, rep = newton(sysm, u_n + h * v_n, targets, self.model.linear_solver, opts)
-        if u is None:
-            u, _, rep2 = newton(sysm, u_n, targets, self.model.linear_solver, opts)
+        lin = self.model.linear_solver
+        u0 = self._predict(u_n, v_n, h, prev)
+        u, _, rep = newton(sysm, u0, targets, lin, opts, key=h)
+        if u is None and u0 is not u_n:
+            u, _, rep2 = newton(sysm, u_n, targets, lin, opts, key=h)
             rep2.iterations += rep.iterations
+            rep2.factorizations += rep.factorizations
             rep = rep2
         return u, rep
 
+    def _size(self, h, t, t_end, h_last):
+        """The next substep's size from the proposal h at t (module docstring); h_last
+        when it is that size to rounding (a split's equal substeps keep one h, the key of
+        Newton's factorization)."""
+        span = t_end - t
+        if self.fixed_step or not self.even_steps:
+            return min(h, span)
+        n = max(1, int(np.ceil(span / h * (1.0 - 1e-9))))
+        h = span / n
+        return h_last if h_last and abs(h - h_last) <= 1e-9 * h else h
+
     def advance(self, t_end):
         """Integrate from self.t to t_end (> self.t); returns StepStats. On failure the
-        model, velocity and time stay at their values at the start of the call."""
+        model, velocity and time stay at their values at the start of the call. BLAS runs
+        on one thread meanwhile (solver.linsolve.single_threaded_blas)."""
+        with single_threaded_blas():
+            return self._advance(t_end)
+
+    def _advance(self, t_end):
         t0 = self.t
         span = t_end - t0
         if not (np.isfinite(t_end) and span > 0):
@@ -132,18 +186,20 @@ class Transient:
         p_start = u[pres].copy()
         u0, v0, d0 = u.copy(), v.copy(), self.dissipated
         stats = StepStats()
-        t, run = t0, 0
-        h = self.fixed_step or min(self.h, self.max_substep)
+        t, run, prev = t0, 0, None
+        model.linear_solver.invalidate()
+        h_prop = self.fixed_step or min(self.h, self.max_substep)
         while t < t_end - 1e-12 * max(1.0, abs(t_end)):
-            h = min(h, t_end - t)
+            h = self._size(h_prop, t, t_end, prev[1] if prev else None)
             t_new = t + h
             if t_end - t_new < 1e-9 * span:
                 t_new, h = t_end, t_end - t
             lam = 1.0 if self.hold == "step" else (t_new - t0) / span
             sysm.lam, sysm.t = lam, t_new
             targets = p_start + lam * (p_target - p_start)
-            u_new, rep = self._substep(sysm, u, v, h, targets, opts)
+            u_new, rep = self._substep(sysm, u, v, h, targets, opts, prev)
             stats.newton_iterations += rep.iterations
+            stats.factorizations += rep.factorizations
             if u_new is None:
                 stats.cutbacks += 1
                 run += 1
@@ -155,17 +211,18 @@ class Transient:
                     self.dissipated = d0
                     sysm.lam = 0.0
                     return stats
-                h /= 4
+                h_prop = h / 4
                 continue
             run = 0
             v_new = (u_new - u) / h
             err = 0.5 * h * float(np.abs(v_new - v).max())
             if self.fixed_step is None and err > self.tol and h > self.min_substep * 1.0001:
                 stats.rejected += 1
-                h = max(h * max(0.3, 0.9 * np.sqrt(self.tol / err)), self.min_substep)
+                h_prop = max(h * max(0.3, 0.9 * np.sqrt(self.tol / err)), self.min_substep)
                 continue
             if self.damping is not None:
                 self.dissipated += h * float(v_new.ravel() @ self.damping.force(v_new))
+            prev = (v, h)
             u, v, t = u_new, v_new, t_new
             sysm.commit(u)
             stats.substeps += 1
@@ -173,8 +230,9 @@ class Transient:
             stats.history.append((t, h, rep.iterations))
             if self.fixed_step is None:
                 grow = 2.0 if err == 0 else min(2.0, max(0.3, 0.9 * np.sqrt(self.tol / err)))
-                h = min(h * grow, self.max_substep)
-                self.h = h
+                landed = self.even_steps and h < h_prop and grow >= 1.0
+                h_prop = min(max(h * grow, h_prop) if landed else h * grow, self.max_substep)
+                self.h = h_prop
         self.t = t_end
         model.u = u.reshape(-1, 3).copy()
         self.v = v.reshape(-1, 3).copy()

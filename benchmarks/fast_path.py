@@ -1,0 +1,203 @@
+"""The fast full-order path against the old one: wall time of a lip gesture with contact.
+
+    python benchmarks/fast_path.py [--only a|b] [--quick] [--duration S] [--paths old,new]
+                                   [--linear-solver auto|pardiso|superlu] [--profile]
+                                   [--md FILE]
+
+Scene (`gesture`): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held to 0.3 s,
+lip and teeth contact on, lip aperture and protrusion recorded every 10 ms, at the
+`balanced` fidelity preset (solver.fidelity: loose substep and Newton tolerances) on
+
+    a  the reference (ANSYS) face, full face (../shared/data/reference-face or
+       $FACEFMU_REFERENCE_FACE; skipped where absent)      target 27 s wall for 0.3 s
+    b  the generic face at level "paper", half face         target 15 s wall for 0.3 s
+
+Each case runs with each path (build time apart, the numba kernels compiled beforehand):
+
+    old  full Newton: a factorization at every iteration, predictor u_n + h v_n with a
+         second try from u_n (solver.transient), as before issue 10
+    new  the defaults: factorization reuse (NewtonOptions.reuse, refactor_ratio) and
+         the integrator's warm start (Transient.predictor)
+
+and prints per case and path: wall time (s), real-time factor (wall / simulated time),
+substeps, Newton iterations, factorizations, assemblies with tangent, residual-only
+evaluations, and the largest difference (mm) between the paths' lip aperture and
+protrusion over the recorded times (the paths share the convergence criteria, so they
+must agree to a small multiple of the Newton tolerance). A run whose step fails after
+every cutback is reported (column failed) with its figures up to there. --profile
+instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
+top functions.
+--quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO where
+it installs; the FMU takes SuperLU). --md FILE writes the table as markdown too.
+"""
+
+import argparse
+import cProfile
+import os
+import pstats
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):                     # run as a script: the repository root
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.table import report  # noqa: E402
+
+REFERENCE_FACE = Path(os.environ.get(
+    "FACEFMU_REFERENCE_FACE",
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
+DURATION, QUICK = 0.3, 0.05                       # s
+CASES = {"a": dict(anatomy=str(REFERENCE_FACE), half=False),
+         "b": dict(anatomy="generic", level="paper", half=True)}
+TARGETS = {"a": 27.0, "b": 15.0}                 # s wall for 0.3 s
+# the options of each path: NewtonOptions fields and Transient attributes
+PATHS = {"old": {"newton": dict(reuse=False), "transient": {}},
+         "new": {"newton": {}, "transient": {}}}
+
+
+def gesture(duration=DURATION):
+    """The benchmark scene, as a dict for solver.scene.parse_scene."""
+    def ramp(m, to):
+        return {"muscle": m, "kind": "ramp", "start": 0.0, "end": 0.15, "to": to}
+    return {"scene": {"name": "fast_path_gesture", "analysis": "transient",
+                      "duration": duration, "fidelity": "balanced",
+                      "description": "OOP + RIS rounding with lip and teeth contact"},
+            "muscles": {"driven": ["OOP", "RIS"]},
+            "effects": {"lip_contact": True, "teeth_contact": True},
+            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.01},
+            "schedule": [ramp("OOP", 1.0), ramp("RIS", 0.5)]}
+
+
+def build(case, duration, path, linear_solver="auto"):
+    """A Simulation of the gesture for case 'a' | 'b', set up for path 'old' | 'new'."""
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    sim = Simulation(parse_scene(gesture(duration)), linear_solver=linear_solver,
+                     **CASES[case])
+    opts = PATHS[path]
+    for k, v in opts["newton"].items():
+        setattr(sim.face.model.newton_options, k, v)
+    for k, v in opts["transient"].items():
+        setattr(sim.integrator, k, v)
+    return sim
+
+
+def run(case, duration, path, linear_solver="auto"):
+    """One run: a row of figures and the recorded outputs."""
+    t0 = time.perf_counter()
+    sim = build(case, duration, path, linear_solver)
+    t_build = time.perf_counter() - t0
+    sysm = sim.face.model.system()
+    lin = sim.face.model.linear_solver
+    f0 = getattr(lin, "factorizations", 0)
+    c0 = dict(sysm.counters)
+    totals = {"substeps": 0, "newton_its": 0, "cutbacks": 0}
+    t0 = time.perf_counter()
+    rows, failed = [], ""
+    try:
+        sim.run(on_record=lambda s, row: (_count(s, totals), rows.append(row)))
+    except RuntimeError as exc:                   # a step failed after every cutback
+        failed = str(exc)
+    wall = time.perf_counter() - t0
+    row = {"case": case, "path": path, "solver": lin.name, "dof": 3 * sim.anatomy.mesh.n_nodes,
+           "build_s": t_build, "wall_s": wall, "rtf": wall / duration,
+           **totals,
+           "factorizations": getattr(lin, "factorizations", 0) - f0,
+           "assemblies": sysm.counters["assemblies"] - c0["assemblies"],
+           "residuals": sysm.counters["residuals"] - c0["residuals"],
+           "failed": failed or "-"}
+    sim.release()
+    return row, rows
+
+
+def _count(sim, totals):
+    """Add the statistics of the simulation's last step to totals."""
+    if sim.t > 0:
+        totals["substeps"] += sim.last.substeps
+        totals["newton_its"] += sim.last.newton_iterations
+        totals["cutbacks"] += sim.last.cutbacks
+
+
+def max_diff(rows, ref, key):
+    """Largest difference over the times both runs recorded (a failed run stops early)."""
+    return max(abs(a[key] - b[key]) for a, b in zip(rows, ref))
+
+
+def warm_up():
+    """Compile (or load) the numba kernels outside the timings: a few steps, coarse face."""
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    sim = Simulation(parse_scene(gesture(0.02)), level="coarse", half=True)
+    sim.run()
+    sim.release()
+
+
+def profile(case, duration, path, top=25):
+    sim = build(case, duration, path)
+    prof = cProfile.Profile()
+    t0 = time.perf_counter()
+    prof.enable()
+    sim.run()
+    prof.disable()
+    print(f"case {case}, path {path}, {duration} s simulated: "
+          f"{time.perf_counter() - t0:.2f} s wall under cProfile; "
+          f"counters {sim.face.model.system().counters}, factorizations "
+          f"{getattr(sim.face.model.linear_solver, 'factorizations', '?')}")
+    seconds = sim.face.model.system().term_seconds
+    print("assembly time per term (s): " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
+    pstats.Stats(prof).sort_stats("tottime").print_stats(top)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=sorted(CASES))
+    ap.add_argument("--quick", action="store_true", help=f"{QUICK} s of the gesture")
+    ap.add_argument("--duration", type=float)
+    ap.add_argument("--paths", default="old,new")
+    ap.add_argument("--linear-solver", default="auto")
+    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--md")
+    args = ap.parse_args(argv)
+    cases = [args.only] if args.only else sorted(CASES)
+    if not REFERENCE_FACE.is_dir() and "a" in cases:
+        print(f"case a skipped: no reference face at {REFERENCE_FACE}")
+        cases.remove("a")
+    paths = args.paths.split(",")
+    warm_up()
+    if args.profile:
+        for case in cases:
+            profile(case, args.duration or QUICK, paths[-1])
+        return 0
+    duration = args.duration or (QUICK if args.quick else DURATION)
+    table = []
+    for case in cases:
+        runs = {}
+        for path in paths:
+            row, rec = run(case, duration, path, args.linear_solver)
+            runs[path] = rec
+            ref = runs[paths[0]]
+            row["d_aperture_mm"] = max_diff(rec, ref, "lip_aperture")
+            row["d_protrusion_mm"] = max_diff(rec, ref, "lip_protrusion")
+            row["aperture_end_mm"] = rec[-1]["lip_aperture"]
+            row["protrusion_end_mm"] = rec[-1]["lip_protrusion"]
+            row["end_s"] = rec[-1]["time"]
+            row["target_s"] = TARGETS[case] * duration / DURATION
+            table.append(row)
+            print(f"  {case} {path}: {row['wall_s']:.2f} s to t = {row['end_s']:.3f} s "
+                  f"{row['failed']}", flush=True)
+    keys = ["case", "path", "solver", "dof", "build_s", "wall_s", "target_s", "rtf", "substeps",
+            "newton_its", "factorizations", "assemblies", "residuals", "cutbacks",
+            "d_aperture_mm", "d_protrusion_mm", "aperture_end_mm", "protrusion_end_mm",
+            "failed"]
+    print(f"\ngesture of {duration} s at the balanced preset (wall times; the machine may "
+          f"be shared)")
+    report(table, keys)
+    if args.md:
+        import contextlib
+        with open(args.md, "w") as fh, contextlib.redirect_stdout(fh):
+            report(table, keys)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

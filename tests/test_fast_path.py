@@ -1,0 +1,169 @@
+"""The fast full-order path (issue 10): factorization reuse, warm starts, BLAS threads."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import solver
+from solver.linsolve import SuperLU, _openblas_threads, available, make_solver, single_threaded_blas
+from solver.meshgen import box
+from solver.newton import NewtonOptions, newton
+from solver.transient import Transient
+
+TIP_FORCE = (0.0, 0.0, -1e-4)       # N: about 1.3 mm of tip deflection, a nonlinear bend
+
+
+def _bar():
+    mesh = box(8, 2, 2, (20.0, 4.0, 4.0))
+    model = solver.Model(mesh)
+    model.fix(mesh.node_sets["xmin"])
+    model.add_force(mesh.node_sets["xmax"], TIP_FORCE)
+    return model
+
+
+def _run(reuse=True, t_end=0.02, **transient):
+    """The bar released under a tip force: (u at t_end, StepStats, model)."""
+    model = _bar()
+    model.newton_options.reuse = reuse
+    tr = Transient(model, hold="step", **transient)
+    stats = tr.advance(t_end)
+    assert stats.converged
+    return model.u.copy(), stats, model
+
+
+def test_reuse_gives_full_newtons_solution_with_fewer_factorizations():
+    u_full, s_full, _ = _run(reuse=False)
+    u_mod, s_mod, m_mod = _run(reuse=True)
+    assert np.abs(u_full).max() > 1.0                          # a large motion
+    assert np.abs(u_mod - u_full).max() < 1e-4                  # mm: Newton tolerance
+    assert s_mod.substeps == s_full.substeps
+    assert s_full.factorizations == s_full.newton_iterations    # full Newton: one per iteration
+    assert s_mod.factorizations < 0.7 * s_full.factorizations
+    assert m_mod.linear_solver.factorizations == s_mod.factorizations
+
+
+def test_default_reuses_in_time_stepping_only():
+    _, s_mod, _ = _run(reuse=True)
+    _, s_default, _ = _run(reuse=None)
+    assert s_default.factorizations == s_mod.factorizations
+    model = _bar()
+    model.forces.target[:] *= 0.1
+    res = model.solve_static()
+    assert res.converged and model.linear_solver.factorizations == res.iterations
+
+
+def _substep_case(scale, h=2e-3):
+    """Newton's problem of the bar's first substep of size h under scale x the tip force:
+    (system, targets, start)."""
+    model = _bar()
+    model.forces.target[:] *= scale
+    tr = Transient(model, hold="step")
+    sysm = model.system()
+    u0 = np.zeros(sysm.ndof)
+    for term in tr.step_terms:
+        term.prepare(h, u0.reshape(-1, 3), u0.reshape(-1, 3))
+    return sysm, np.zeros(len(sysm.prescribed)), u0
+
+
+def test_slow_convergence_refactorizes_and_converges():
+    """100 x the force in one substep (a 1.8 mm jump): the tangent changes along the
+    iteration, the reused factorization's iterations slow down, and Newton refactorizes
+    (several times) instead of crawling on it; same solution as full Newton."""
+    sysm, tg, u0 = _substep_case(100.0)
+    opts = NewtonOptions(reuse=True)
+    u, _, rep = newton(sysm, u0, tg, make_solver("auto"), opts, key=2e-3)
+    assert rep.converged and rep.factorizations >= 2
+    assert rep.factorizations < rep.iterations
+    res = rep.residuals
+    assert any(res[k] > opts.refactor_ratio * res[k - 1] for k in range(1, len(res)))
+    u_full, _, rep_full = newton(sysm, u0, tg, make_solver("auto"), NewtonOptions(reuse=False))
+    assert rep_full.converged and rep_full.factorizations == rep_full.iterations
+    assert np.abs(u_full).max() > 1.0
+    assert np.abs(u - u_full).max() < 1e-4
+
+
+def test_factorization_is_reused_only_for_the_same_system_and_key():
+    sysm, tg, u0 = _substep_case(1.0)
+    lin = make_solver("auto")
+    opts = NewtonOptions(reuse=True)
+    u1, _, rep1 = newton(sysm, u0, tg, lin, opts, key=1.0)
+    assert rep1.converged and rep1.factorizations >= 1
+    start = u1.copy()
+    start[sysm.free] += 1e-3                                        # off the solution
+    u2, _, rep2 = newton(sysm, start, tg, lin, opts, key=1.0)       # same key: reused
+    assert rep2.converged and rep2.factorizations == 0 and rep2.iterations >= 1
+    _, _, rep3 = newton(sysm, start, tg, lin, opts, key=2.0)        # another key: new one
+    assert rep3.converged and rep3.factorizations >= 1
+    assert np.abs(u2 - u1).max() < 1e-4
+
+
+def test_failed_step_leaves_the_state_and_drops_the_factorization():
+    model = _bar()
+    tr = Transient(model, hold="step", max_cutbacks=0)
+    assert tr.advance(0.002).converged
+    u, v = model.u.copy(), tr.v.copy()
+    model.newton_options.max_iter = 1                 # cannot converge: the step fails
+    model.forces.target[:] *= 50.0
+    stats = tr.advance(0.02)
+    assert not stats.converged
+    assert np.array_equal(model.u, u) and np.array_equal(tr.v, v) and tr.t == 0.002
+    assert model.linear_solver.tag is None
+    model.newton_options.max_iter = 25                # and the next valid step works
+    assert tr.advance(0.004).converged
+
+
+@pytest.mark.parametrize("predictor", ["none", "quadratic"])
+def test_predictor_does_not_change_the_converged_answer(predictor):
+    u_ref, s_ref, _ = _run(fixed_step=1e-3)
+    u, s, _ = _run(fixed_step=1e-3, predictor=predictor)
+    assert np.abs(u - u_ref).max() < 1e-4
+    assert s.substeps == s_ref.substeps == 20
+
+
+def test_even_steps_land_without_remnants_and_stay_accurate():
+    u_ref, _, _ = _run(t_end=0.0203)
+    model = _bar()
+    tr = Transient(model, hold="step", even_steps=True)
+    stats = tr.advance(0.0203)
+    assert stats.converged
+    hs = [h for _, h, _ in stats.history]
+    assert min(hs) > 0.2 * max(hs)                    # no tiny remnant at the end
+    assert np.abs(model.u - u_ref).max() < 0.05       # mm: both within the error control
+
+
+def test_caller_step_repeats_exactly_with_reuse():
+    """Each caller step starts with a new factorization: a repeated step (an FMU rollback)
+    gives the same bits."""
+    model = _bar()
+    tr = Transient(model, hold="step")
+    tr.advance(0.005)
+    u, v, h = model.u.copy(), tr.v.copy(), tr.h
+    tr.advance(0.01)
+    first = model.u.copy()
+    model.u, tr.v, tr.h, tr.t = u.copy(), v.copy(), h, 0.005
+    tr.advance(0.01)
+    assert np.array_equal(model.u, first)
+
+
+def test_single_threaded_blas_restores_the_thread_count():
+    libs = _openblas_threads()
+    before = [get() for get, _ in libs]
+    with single_threaded_blas():
+        assert all(get() == 1 for get, _ in libs)
+    assert [get() for get, _ in libs] == before
+
+
+@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
+def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
+    from solver.linsolve import Pardiso
+    lin = Pardiso()
+    for n in (30, 30, 40):
+        A = sp.random(n, n, density=0.2, random_state=rng) + sp.identity(n) * n
+        A = sp.csr_matrix(A + A.T)
+        for scale in (1.0, 3.0):                       # the same pattern: cached gather
+            b = rng.normal(size=n)
+            lin.refactor(A * scale, "x")
+            assert np.allclose((A * scale) @ lin.solve(b), b, atol=1e-10)
+    ref = SuperLU()
+    ref.factorize(A)
+    assert np.allclose(ref.solve(b), lin.solve(b) * 3.0, atol=1e-10)
