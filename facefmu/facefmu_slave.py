@@ -179,7 +179,8 @@ class FaceFMU(Fmi2Slave):
         stats = self.sim.step(self.time + step_size)
         if not stats.converged:
             return self._refuse(f"step from t = {self.time} s refused: the solver did not "
-                                f"converge ({stats.reason}); the state stays at t = {self.time} s")
+                                f"converge after {stats.cutbacks} cutbacks ({stats.reason}); "
+                                f"the state stays at t = {self.time} s")
         self.time = self.sim.t
         self._publish()
         return True

@@ -6,6 +6,7 @@ package already imported by the test process would win over the FMU's own copy.
 """
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -102,5 +103,5 @@ def test_a_step_the_solver_cannot_take_is_refused_and_the_state_kept(fmu, tmp_pa
                      '[solver]\nmax_substep = 0.005\nmin_substep = 0.004\n')
     res, stdout = _run("nonconvergence.py", fmu, tmp_path, str(scene))
     assert res["status"] == 2 and res["unchanged"]
-    assert "did not converge" in stdout
+    assert re.search(r"did not converge after [1-9]\d* cutbacks", stdout)   # logged, counted
     assert res["after"][0] != 0.0                        # the next valid step moved the lips
