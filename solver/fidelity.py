@@ -41,11 +41,21 @@ PRESETS = {
 }
 FIDELITIES = tuple(PRESETS)
 
+# --- reduced-order fidelities (solver.rom; issue 10) -----------------------------------
+# Not presets of the full-order solver (not in FIDELITIES nor PRESETS): Simulation(...,
+# fidelity="realtime") builds a solver.rom.simulation.ReducedSimulation, whose full-order
+# model (training snapshots, fallback) has these knobs. Scene files do not take them.
+REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatation",
+                            **LOOSE)}
+
 
 def fidelity_overrides(name):
     """The Scene fields of the preset `name` (a new dict); ParameterError if unknown."""
+    if name in REDUCED:
+        return dict(REDUCED[name])
     if name not in PRESETS:
-        raise ParameterError(f"fidelity {name!r} is not one of {', '.join(FIDELITIES)}")
+        raise ParameterError(f"fidelity {name!r} is not one of "
+                             f"{', '.join(FIDELITIES + tuple(REDUCED))}")
     return dict(PRESETS[name])
 
 

@@ -52,6 +52,15 @@ class Simulation:
     solver.fidelity (applied before the overrides); overrides: Scene fields to replace;
     loaded_anatomy: an Anatomy already in memory (instead of loading the scene's)."""
 
+    def __new__(cls, *args, **kwargs):
+        # --- reduced-order fidelity hook (solver.rom, issue 10): fidelity="realtime" builds
+        # a solver.rom.simulation.ReducedSimulation (this API, the reduced model behind it)
+        from .fidelity import REDUCED
+        if cls is Simulation and kwargs.get("fidelity") in REDUCED:
+            from .rom.simulation import ReducedSimulation
+            return super().__new__(ReducedSimulation)
+        return super().__new__(cls)
+
     def __init__(self, scene="default", loaded_anatomy=None, fidelity=None, **overrides):
         scene = resolve_scene(scene)
         if fidelity is not None:

@@ -1,0 +1,118 @@
+"""Train the realtime (reduced-order) model of a scene, and measure it on held-out gestures.
+
+    python benchmarks/rom_train.py [--scene SCENE] [--runs 24] [--duration 0.2]
+                                   [--energy 1e-6] [--ecsw-tol 1e-2] [--max-wall 40]
+                                   [--out FILE.npz]
+                                   [--scheduler ADDRESS] [--workers 2] [--no-dask]
+    python benchmarks/rom_train.py --accuracy [--scene SCENE] [--model FILE.npz]
+                                   [--gestures oop_ris,open,open_round] [--md FILE]
+
+SCENE: a built-in scene, a TOML file, or `speech` (the default: all ten muscles driven,
+transient, lip and teeth contact on, the generic face). The model is trained for the
+scene's full-order model at the realtime knobs (solver.fidelity.REDUCED: coarse generic
+half face) and cached in the user cache (solver.rom.store; the path is printed), where
+`Simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
+a dask LocalCluster (benchmarks.sweep.Sweep, `--workers` one-thread processes) or a
+running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the steps.
+
+--accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced and the
+full-order model and prints max and RMS errors (mm) in lip aperture and protrusion and
+the wall time of each (docs/realtime.md has the figures of the last run).
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+if __package__ in (None, ""):                     # run as a script: the repository root
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.table import report  # noqa: E402
+
+SPEECH = {"scene": {"name": "speech", "analysis": "transient", "duration": 0.3,
+                    "description": "all ten muscles, lip and teeth contact"},
+          "effects": {"lip_contact": True, "teeth_contact": True}}
+
+
+def load(name):
+    from solver.fidelity import apply_fidelity
+    from solver.scene import parse_scene
+    from solver.simulation import resolve_scene
+    scene = parse_scene(SPEECH) if name == "speech" else resolve_scene(name)
+    return apply_fidelity(scene, "realtime")
+
+
+def train_main(args):
+    from solver.rom.train import train
+    scene = load(args.scene)
+    kw = dict(runs=args.runs, duration=args.duration, energy=1.0 - args.energy,
+              ecsw_tol=args.ecsw_tol, out=args.out, seed=args.seed,
+              max_wall=args.max_wall, budget=args.budget)
+    if args.no_dask:
+        return train(scene, **kw)
+    from benchmarks.sweep import Sweep
+    with Sweep(args.scheduler, n_workers=args.workers) as sweep:
+        sweep.warmup(scene)
+        return train(scene, client=sweep.client, **kw)
+
+
+def accuracy_main(args):
+    from solver.rom.accuracy import GESTURES, compare
+    from solver.simulation import Simulation
+    scene = load(args.scene)
+    rom = Simulation(scene, fidelity="realtime", rom_model=args.model,
+                     check_every=args.check_every)
+    full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)
+    m = rom.rom_meta
+    print(f"model: {m['basis_size']} modes, {m['bricks_selected']} of {m['bricks_total']} "
+          f"bricks, trained on {m['runs']} runs in {m['train_s']:.0f} s")
+    names = args.gestures.split(",") if args.gestures else list(GESTURES)
+    rows = compare(rom, full, names)
+    cols = ["gesture", "duration_s", "max_err_aperture_mm", "rms_err_aperture_mm",
+            "max_err_protrusion_mm", "rms_err_protrusion_mm", "full_range_aperture_mm",
+            "full_range_protrusion_mm", "rom_wall_s", "rom_cpu_s", "rom_ms_per_step",
+            "full_wall_s", "full_cpu_s", "rom_rtf", "full_rtf", "rho_max", "fell_back"]
+    report(rows, cols, args.csv)
+    if args.md:
+        with open(args.md, "w") as fh:
+            fh.write("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n")
+            for r in rows:
+                fh.write("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float)
+                                           else str(r[c]) for c in cols) + " |\n")
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="speech")
+    ap.add_argument("--runs", type=int, default=24, help="snapshot runs")
+    ap.add_argument("--duration", type=float, default=0.2, help="s per snapshot run")
+    ap.add_argument("--energy", type=float, default=1e-6,
+                    help="POD energy left out (basis: captured energy >= 1 - this)")
+    ap.add_argument("--ecsw-tol", type=float, default=1e-2, help="ECSW relative tolerance")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--budget", type=float, help="s: snapshot runs not finished by then "
+                    "are left out (finished runs are cached and reused by the next call)")
+    ap.add_argument("--max-wall", type=float, default=40.0,
+                    help="s: a snapshot run stops there, keeping its snapshots")
+    ap.add_argument("--out", type=Path, help="model file (default: the user cache)")
+    ap.add_argument("--scheduler", help="address of a running dask scheduler")
+    ap.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes")
+    ap.add_argument("--no-dask", action="store_true", help="snapshot runs in this process")
+    ap.add_argument("--accuracy", action="store_true", help="held-out gestures, ROM vs full")
+    ap.add_argument("--model", type=Path, help="--accuracy: this model file (default: the "
+                                               "cached model of the scene)")
+    ap.add_argument("--gestures", help="--accuracy: comma-separated gesture names")
+    ap.add_argument("--check-every", type=int, default=20,
+                    help="--accuracy: substeps between trust checks")
+    ap.add_argument("--csv", type=Path, help="--accuracy: write the table as CSV")
+    ap.add_argument("--md", type=Path, help="--accuracy: write the table as markdown")
+    args = ap.parse_args(argv)
+    if args.accuracy:
+        accuracy_main(args)
+    else:
+        train_main(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""Trained reduced models on disk: one .npz per model, cached per user.
+
+A model is valid for one full-order model: the anatomy, mesh level, half face, brick
+rows and the scene's effects (driven muscles, force scales, stiffening and its rule,
+contact, inertia and damping constants, density, formulation, gravity). Those make the
+key (`model_key`); its hash names the file, and the key itself is stored in the file and
+checked on loading, so a model is never used for another face or another set of effects.
+
+Cache folder: <user cache>/rom (solver._cache.user_cache_dir: $FACEFMU_CACHE_DIR, else
+$XDG_CACHE_HOME/facefmu, else ~/.cache/facefmu), or $FACEFMU_ROM_DIR. Files are plain
+numpy .npz (no pickles) that can be copied and shipped; `load_model(path)` reads one
+from anywhere.
+
+Arrays in a file: V (3 n, r) the basis (zero rows on constrained DOFs), bricks (k,) and
+weights (k,) the cubature, M_r, K0_r (r, r) the reduced mass and rest passive stiffness,
+sigma the POD singular values, trust_threshold (1,), and meta: a JSON string (the key,
+basis size, captured energy, ECSW tolerance and residual, training runs and times,
+calibration figures).
+"""
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._cache import user_cache_dir
+from ..errors import FaceFMUError
+
+FORMAT = 1
+ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
+
+
+class ModelNotTrained(FaceFMUError, LookupError):
+    """No trained reduced model for a scene; names the training command."""
+
+
+def model_key(scene):
+    """The fields of a solver.scene.Scene that a reduced model depends on (a dict)."""
+    anatomy = scene.anatomy
+    if anatomy != "generic":
+        anatomy = str(Path(anatomy).resolve())
+    return {"format": FORMAT, "anatomy": anatomy, "level": scene.level if
+            scene.anatomy == "generic" else "-", "half": bool(scene.half),
+            "rows": scene.rows, "driven": list(scene.driven),
+            "force_scale": {m: float(v) for m, v in sorted(scene.force_scale.items())
+                            if v != 1.0},
+            "stiffening": bool(scene.stiffening), "stiffening_rule": scene.stiffening_rule,
+            "lip_contact": bool(scene.lip_contact), "teeth_contact": bool(scene.teeth_contact),
+            "inertia": bool(scene.inertia), "damping": bool(scene.damping),
+            "alpha": float(scene.alpha), "beta": float(scene.beta),
+            "density": float(scene.density), "formulation": scene.formulation,
+            "gravity": scene.gravity}
+
+
+def key_hash(key):
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cache_dir():
+    return Path(os.environ.get("FACEFMU_ROM_DIR") or user_cache_dir() / "rom")
+
+
+def model_path(scene, folder=None):
+    key = model_key(scene)
+    name = Path(key["anatomy"]).name if key["anatomy"] != "generic" else "generic"
+    half = "half" if key["half"] else "full"
+    return Path(folder or cache_dir()) / f"rom-{name}-{key['level']}-{half}-{key_hash(key)}.npz"
+
+
+def save_model(path, arrays, meta):
+    """Write a model (arrays: dict of ARRAYS; meta: JSON-able dict) to path (.npz)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, meta=np.array(json.dumps(meta, sort_keys=True)),
+             **{k: np.asarray(arrays[k]) for k in ARRAYS})
+    os.replace(tmp, path)
+    return path
+
+
+def load_model(path, key=None):
+    """(arrays dict, meta dict) from a .npz; with key, FaceFMUError unless it matches."""
+    with np.load(Path(path), allow_pickle=False) as f:
+        meta = json.loads(str(f["meta"]))
+        arrays = {k: f[k] for k in ARRAYS}
+    if meta.get("key", {}).get("format") != FORMAT:
+        raise FaceFMUError(f"{path}: reduced model of another format; retrain it")
+    if key is not None and meta["key"] != json.loads(json.dumps(key)):
+        diff = sorted(k for k in key if meta["key"].get(k) != key[k])
+        raise FaceFMUError(f"{path}: reduced model trained for other settings ({diff})")
+    return arrays, meta
+
+
+def find_model(scene, folder=None):
+    """(arrays, meta) of the cached model of scene, or ModelNotTrained naming the
+    training command."""
+    path = model_path(scene, folder)
+    if not path.is_file():
+        k = model_key(scene)
+        raise ModelNotTrained(
+            f"no trained realtime model for this scene (anatomy {k['anatomy']}, level "
+            f"{k['level']}, half {k['half']}, muscles {','.join(k['driven'])}, lip contact "
+            f"{k['lip_contact']}, teeth contact {k['teeth_contact']}) in {path.parent}; "
+            f"train it with: python benchmarks/rom_train.py --scene SCENE (the scene of "
+            f"this simulation), or pass train=True to train on demand")
+    return load_model(path, model_key(scene))

@@ -1,0 +1,326 @@
+r"""Offline training of a realtime (reduced) model from full-order snapshot runs.
+
+1. Snapshots: `runs` full-order transient runs of `duration` s (the scene's full model at
+   the realtime knobs: coarse generic half face, loose tolerances), each under a random
+   activation pattern of the scene's driven muscles (`random_schedules`: one to four
+   muscles ramping 0 -> U(0.1, 1) over U(0.05, 0.1) s from U(0, 0.05) s, half of them
+   relaxing again; otherwise one run in four co-activates five or more at U(0, 0.6)); the
+   displacements are recorded every `interval` s. The first 2 x (driven muscles) runs
+   each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
+   at U(0.1, 1); a run that takes longer than max_wall keeps the snapshots it has. Runs are independent tasks: through a
+   dask client (benchmarks.sweep.Sweep, `snapshot_task`) or in this process.
+2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy.
+3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
+   basis, u = V V^T u_j, with their activations (tissue + stiffening per brick).
+4. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping).
+5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns;
+   the threshold is `trust_factor` times the largest full-order residual rho met
+   (solver.rom.simulation), at least `trust_floor`. The largest displacement and lip
+   output differences to the full runs of those patterns are stored in meta.
+"""
+
+import time
+
+import numpy as np
+
+from ..anatomy.base import MUSCLE_NAMES
+from ..scene import Schedule
+from .ecsw import ecsw, scale_rows
+from .kernels import element_forces
+from .pod import captured_energy, pod_basis
+from .store import model_key, model_path, save_model
+
+
+def _pwl(muscle, times, values):
+    t, v = [times[0]], [values[0]]
+    for a, b in zip(times[1:], values[1:]):
+        if a > t[-1] + 1e-9:
+            t.append(a)
+            v.append(b)
+    return Schedule(muscle, "pwl", tuple(float(x) for x in t), tuple(float(x) for x in v))
+
+
+def random_schedules(rng, muscles, duration, primary=None):
+    """A random activation pattern: a tuple of solver.scene.Schedule (module docstring).
+    primary: a muscle that takes part at a high level (U(0.6, 1))."""
+    muscles = list(muscles)
+    out = []
+    if len(muscles) >= 5 and primary is None and rng.random() < 0.25:
+        chosen = rng.choice(muscles, rng.integers(5, len(muscles) + 1), replace=False)
+        levels = rng.uniform(0.0, 0.6, len(chosen))
+    else:
+        others = [m for m in muscles if m != primary]
+        n = rng.integers(0 if primary else 1, min(3, len(others)) + 1)
+        chosen = ([primary] if primary else []) + list(rng.choice(others, n, replace=False))
+        levels = rng.uniform(0.1, 1.0, len(chosen))
+        if primary:
+            levels[0] = rng.uniform(0.6, 1.0)
+    for m, level in zip(chosen, levels):
+        t0 = rng.uniform(0.0, 0.05)
+        t1 = t0 + rng.uniform(0.05, 0.1)
+        times, values = [0.0, t0, t1], [0.0, 0.0, level]
+        if rng.random() < 0.5 and t1 + 0.04 < duration:
+            t2 = t1 + rng.uniform(0.0, 0.03)
+            t3 = min(t2 + rng.uniform(0.05, 0.1), duration)
+            times += [t2, t3]
+            values += [level, rng.uniform(0.0, 0.5 * level)]
+        times.append(max(duration, times[-1]))
+        values.append(values[-1])
+        out.append(_pwl(str(m), times, values))
+    return tuple(out)
+
+
+def drive(sim, schedules, duration, interval, on_record=None, max_wall=None):
+    """Step sim through schedules (Schedule tuple) to duration at interval; lip outputs
+    (list of dicts with time) at every interval (t = 0 included). max_wall (s): stop
+    early once the run has taken that long (the rows so far)."""
+    times = np.arange(1, int(round(duration / interval)) + 1) * interval
+    rows = [{"time": 0.0, **sim.outputs()}]
+    t_start = time.perf_counter()
+    for t in times:
+        if max_wall is not None and time.perf_counter() - t_start > max_wall:
+            break
+        values = {m: 0.0 for m in sim.face.muscles}
+        values.update({s.muscle: s.value(t) for s in schedules})
+        sim.set_activations(values)
+        stats = sim.step(float(t))
+        if not stats.converged:
+            raise RuntimeError(f"step to t = {t:.4g} s failed: {stats.reason}")
+        rows.append({"time": float(t), **sim.outputs()})
+        if on_record is not None:
+            on_record(sim)
+    return rows
+
+
+def snapshot_task(task, scene, sim=None):
+    """One full-order snapshot run (a dask task): task {"label", "schedules", "duration",
+    "interval", "max_wall" (optional, s: the run stops there, keeping its snapshots),
+    **Simulation keyword arguments}; scene a solver.scene.Scene; sim: a full-order
+    Simulation of scene to reuse (reset to rest). Returns {"label", "U" (3 n, s)
+    displacements, "A" (s, 10) activations, "rows", "wall_s", "error"}."""
+    from ..simulation import Simulation
+    out = {"label": task.get("label", ""), "error": ""}
+    kw = {k: v for k, v in task.items()
+          if k not in ("label", "schedules", "duration", "interval", "max_wall")}
+    U, A = [], []
+
+    def keep(sim):
+        U.append(sim.face.u.ravel().copy())
+        A.append(sim.face.activation.start.copy())
+    try:
+        t0 = time.perf_counter()
+        if sim is None:
+            sim = Simulation(scene, **kw)
+        else:
+            sim.set_state({"t": 0.0, "u": 0.0 * sim.face.u, "v": 0.0 * sim.face.u,
+                           "activation": np.zeros(len(MUSCLE_NAMES)), "h": 1e-3})
+        out["rows"] = drive(sim, task["schedules"], task["duration"], task["interval"], keep,
+                            task.get("max_wall"))
+        out["wall_s"] = time.perf_counter() - t0
+    except Exception as exc:                       # reported per task
+        out["error"] = f"{type(exc).__name__}: {exc}"
+        return out
+    out["U"], out["A"] = np.array(U).T, np.array(A)
+    return out
+
+
+def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None):
+    rng = np.random.default_rng(seed)
+    driven = list(scene.driven)
+    order = list(rng.permutation(driven))
+    return [{"label": f"pattern {i}", "schedules": random_schedules(
+                rng, driven, duration, order[i % len(order)] if i < 2 * len(order) else None),
+             "duration": duration, "interval": interval, "max_wall": max_wall}
+            for i in range(runs)]
+
+
+def _task_file(folder, scene, task):
+    import hashlib
+    import json
+    key = json.dumps([model_key(scene), repr(task["schedules"]), task["duration"],
+                      task["interval"], task.get("max_wall")], sort_keys=True)
+    return folder / f"snap-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+
+
+def _save_result(path, r):
+    import json
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, U=r["U"], A=r["A"], rows=np.array(json.dumps(r["rows"])),
+             wall_s=r["wall_s"])
+
+
+def _load_result(path, label):
+    import json
+    with np.load(path, allow_pickle=False) as f:
+        return {"label": label, "error": "", "U": f["U"], "A": f["A"],
+                "rows": json.loads(str(f["rows"])), "wall_s": float(f["wall_s"])}
+
+
+def collect(scene, tasks, client=None, progress=True, sim=None, folder=None, budget=None):
+    """Run the snapshot tasks (on a dask client, or here, reusing the full-order sim if
+    given); their results in order. folder: where finished runs are kept (.npz per
+    task) and found again by a later call with the same tasks. budget (s, dask only):
+    the tasks not finished by then are cancelled and left out (None in the results;
+    a later call with the same folder runs them)."""
+    files = [_task_file(folder, scene, t) if folder else None for t in tasks]
+    results = [_load_result(f, t["label"]) if f and f.is_file() else None
+               for f, t in zip(files, tasks)]
+    todo = [i for i, r in enumerate(results) if r is None]
+    if budget is not None and budget <= 0:          # the kept runs only
+        todo = []
+    t0 = time.perf_counter()
+
+    def done(i, r, count):
+        results[i] = r
+        if files[i] and not r["error"]:
+            _save_result(files[i], r)
+        if progress:
+            print(f"[{count}/{len(todo)} {time.perf_counter() - t0:5.0f} s] {r['label']}: "
+                  f"{r['error'] or '%.1f s wall, %d snapshots' % (r['wall_s'], r['U'].shape[1])}",
+                  flush=True)
+    if client is None:
+        for count, i in enumerate(todo, 1):
+            done(i, snapshot_task(tasks[i], scene, sim), count)
+    else:
+        from dask.distributed import as_completed
+        from dask.distributed import TimeoutError as DaskTimeout
+        futures = {client.submit(snapshot_task, tasks[i], scene, pure=False): i for i in todo}
+        try:
+            for count, f in enumerate(as_completed(futures, timeout=budget), 1):
+                done(futures[f], f.result(), count)
+        except (DaskTimeout, TimeoutError):
+            left = [f for f in futures if not f.done()]
+            client.cancel(left)
+            if progress:
+                print(f"budget of {budget} s spent: {len(left)} runs left out", flush=True)
+    failed = [r["label"] + ": " + r["error"] for r in results if r and r["error"]]
+    if failed:
+        raise RuntimeError("snapshot runs failed: " + "; ".join(failed))
+    return results
+
+
+def brick_data(sim, V):
+    """All bricks as a solver.rom.reduced.ReducedOperator (weights 1)."""
+    from .reduced import ReducedOperator
+    r = V.shape[1]
+    n = sim.anatomy.mesh.n_bricks
+    return ReducedOperator(sim, V, np.arange(n), np.ones(n), np.zeros((r, r)),
+                           np.zeros((r, r)))
+
+
+def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None):
+    """ECSW over up to `states` snapshot columns of U (with activations A): (bricks,
+    weights, relative residual)."""
+    op = brick_data(sim, V)
+    mesh = sim.anatomy.mesh
+    nz = np.flatnonzero(np.abs(U).max(axis=0) > 0)
+    pick = nz[np.unique(np.linspace(0, len(nz) - 1, min(states, len(nz))).astype(int))]
+    r, N = V.shape[1], mesh.n_bricks
+    G = np.empty((len(pick) * r, N))
+    fe = np.empty((N, 24))
+    for j, c in enumerate(pick):
+        u = (V @ (V.T @ U[:, c])).reshape(-1, 3)
+        element_forces(u, mesh.bricks, op.dndX, op.wgp, op.params, op.form, op.sparams,
+                       op.stiffening_factors(A[c]), fe)
+        G[j * r:(j + 1) * r] = np.einsum("ed,edr->re", fe, op.Ve)
+    G, b = scale_rows(G, G.sum(axis=1), r)
+    w, res = ecsw(G, b, tol, max_elements)
+    sel = np.flatnonzero(w > 0)
+    return sel, w[sel], res
+
+
+def reduced_matrices(sim, V):
+    """(M_r, K0_r): V^T M V with the lumped masses, V^T K_0 V (rest passive tangent)."""
+    from ..terms.inertia import lumped_masses, passive_tangent
+    from ..units import kg_per_m3
+    mesh = sim.anatomy.mesh
+    m3 = np.repeat(lumped_masses(mesh, kg_per_m3(sim.scene.density)), 3)
+    M_r = V.T @ (m3[:, None] * V)
+    Ve = brick_data(sim, V).Ve
+    ke = passive_tangent(sim.face.model.elasticity)
+    K0_r = np.einsum("edr,eds->rs", Ve, ke @ Ve)
+    return M_r, 0.5 * (K0_r + K0_r.T)
+
+
+def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client=None,
+          energy=1.0 - 1e-6, r_max=60, ecsw_tol=1e-2, ecsw_states=150, calibration_runs=3,
+          trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
+          sim_only=False, budget=None):
+    """Train, save and return the path of the realtime model of scene (a Scene at the
+    realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
+    runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept)."""
+    from ..simulation import Simulation
+    t_start = time.perf_counter()
+    if sim is None:
+        from ..fidelity import apply_fidelity
+        scene = apply_fidelity(scene, "realtime")
+        sim = Simulation(scene)
+    scene = sim.scene
+    base = scene.with_overrides(schedules=())
+    tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall)
+    from .store import cache_dir, key_hash
+    folder = cache_dir() / "snapshots" / key_hash(model_key(base))
+    results = collect(base, tasks, client, progress, sim, None if sim_only else folder,
+                      budget)
+    kept = [i for i, r in enumerate(results) if r is not None]
+    tasks, results = [tasks[i] for i in kept], [results[i] for i in kept]
+    t_snap = time.perf_counter() - t_start
+    free = sim.face.model.system().free
+    U = np.hstack([r["U"] for r in results])
+    A = np.vstack([r["A"] for r in results])
+    Vf, sigma = pod_basis(U[free], energy, r_max=r_max)
+    V = np.zeros((U.shape[0], Vf.shape[1]))
+    V[free] = Vf
+    t_pod = time.perf_counter()
+    bricks, weights, res = cubature(sim, V, U, A, ecsw_tol, ecsw_states)
+    t_ecsw = time.perf_counter()
+    M_r, K0_r = reduced_matrices(sim, V)
+    arrays = {"V": V, "bricks": bricks, "weights": weights, "M_r": M_r, "K0_r": K0_r,
+              "sigma": sigma, "trust_threshold": np.array([np.inf])}
+    r = V.shape[1]
+    meta = {"key": model_key(scene), "basis_size": r, "runs_used": len(results),
+            "captured_energy": captured_energy(sigma, r), "snapshots": int(U.shape[1]),
+            "runs": runs, "duration": duration, "interval": interval, "seed": seed,
+            "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
+            "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
+            "pod_s": t_pod - t_start - t_snap, "ecsw_s": t_ecsw - t_pod}
+    calib = calibrate(scene, (arrays, meta), tasks[:calibration_runs],
+                      results[:calibration_runs], sim)
+    arrays["trust_threshold"] = np.array([max(trust_factor * calib["rho_max"], trust_floor)])
+    meta.update(calib, trust_threshold=float(arrays["trust_threshold"][0]),
+                train_s=time.perf_counter() - t_start)
+    path = save_model(out or model_path(scene), arrays, meta)
+    if progress:
+        print(f"realtime model: {r} modes ({meta['captured_energy']:.8f} of the energy), "
+              f"{len(bricks)} of {meta['bricks_total']} bricks (ECSW residual {res:.2g}), "
+              f"trust threshold {meta['trust_threshold']:.3g}; trained in "
+              f"{meta['train_s']:.0f} s -> {path}", flush=True)
+    return path
+
+
+def calibrate(scene, model, tasks, results, sim=None):
+    """Run the reduced model on training patterns: the largest trust residual rho and
+    the largest differences to the full runs (displacement, lip aperture, protrusion)."""
+    from .simulation import ReducedSimulation
+    rom = ReducedSimulation(scene, loaded_anatomy=sim.anatomy if sim else None,
+                            rom_model=model, trust="off")
+    rho, du, dap, dpr = [0.0], [0.0], [0.0], [0.0]
+    zero = rom.get_state()
+    for task, full in zip(tasks, results):
+        rom.set_state(zero)
+        rom.t = 0.0
+        k = [0]
+
+        def check(s):
+            rho.append(s.trust_residual())
+            du.append(float(np.abs(s.u.ravel() - full["U"][:, k[0]]).max()))
+            k[0] += 1
+        rows = drive(rom, task["schedules"], task["interval"] * full["U"].shape[1],
+                     task["interval"], check)
+        for a, b in zip(rows, full["rows"]):
+            dap.append(abs(a["lip_aperture"] - b["lip_aperture"]))
+            dpr.append(abs(a["lip_protrusion"] - b["lip_protrusion"]))
+    return {"rho_max": max(rho), "calibration_runs": len(tasks),
+            "calibration_max_du_mm": max(du), "calibration_max_aperture_mm": max(dap),
+            "calibration_max_protrusion_mm": max(dpr)}
+

@@ -1,0 +1,116 @@
+"""The realtime reduced-order model (solver.rom), on a tiny training set.
+
+One module fixture trains a model in this process: the coarse generic half face with
+OOP, RIS and DLI driven, teeth and lip contact, 3 full-order runs of 0.05 s (5 ms
+snapshots). The tests check its parts (POD, ECSW), its answer against the full model on a
+training pattern, the .npz round trip, the trust check and the Simulation integration.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from solver.fidelity import apply_fidelity
+from solver.scene import Scene
+from solver.simulation import Simulation
+
+DRIVEN = ("RIS", "DLI", "OOP")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    from solver.rom.store import load_model
+    from solver.rom.train import collect, snapshot_tasks, train
+    folder = tmp_path_factory.mktemp("rom")
+    scene = apply_fidelity(Scene(name="rom_test", driven=DRIVEN, lip_contact=True,
+                                 teeth_contact=True), "realtime")
+    full = Simulation(scene)
+    path = train(scene, sim=full, runs=3, duration=0.05, interval=0.005, seed=3,
+                 calibration_runs=1, out=folder / "model.npz", progress=False)
+    arrays, meta = load_model(path)
+    tasks = snapshot_tasks(full.scene, 3, 0.05, 0.005, 3)       # the same patterns
+    results = collect(full.scene, tasks, sim=full, progress=False)
+    return {"scene": full.scene, "full": full, "path": path, "arrays": arrays, "meta": meta,
+            "tasks": tasks, "results": results}
+
+
+def test_pod_basis_is_orthonormal_and_reproduces_the_snapshots(trained):
+    V, free = trained["arrays"]["V"], trained["full"].face.model.system().free
+    r = V.shape[1]
+    assert np.allclose(V.T @ V, np.eye(r), atol=1e-10)
+    fixed = np.setdiff1d(np.arange(V.shape[0]), free)
+    assert np.all(V[fixed] == 0.0)                         # constrained DOFs stay at 0
+    U = np.hstack([res["U"] for res in trained["results"]])
+    err = np.linalg.norm(U - V @ (V.T @ U)) / np.linalg.norm(U)
+    assert err <= np.sqrt(1.0 - 0.999999) * 1.01           # the energy criterion
+    assert trained["meta"]["captured_energy"] >= 0.999999
+
+
+def test_ecsw_weights_are_nonnegative_and_reproduce_the_projected_force(trained):
+    from solver.rom.reduced import ReducedOperator
+    from solver.rom.train import brick_data
+    a, full = trained["arrays"], trained["full"]
+    V = a["V"]
+    assert np.all(a["weights"] > 0) and len(a["bricks"]) < full.anatomy.mesh.n_bricks / 3
+    r = V.shape[1]
+    cub = ReducedOperator(full, V, a["bricks"], a["weights"], np.zeros((r, r)),
+                          np.zeros((r, r)))
+    every = brick_data(full, V)
+    res = trained["results"][0]
+    errs = []
+    for j in range(0, res["U"].shape[1], 2):
+        q = V.T @ res["U"][:, j]
+        f_all = every.bricks_part(q, res["A"][j], False)[0]
+        f_cub = cub.bricks_part(q, res["A"][j], False)[0]
+        errs.append(np.linalg.norm(f_cub - f_all) / np.linalg.norm(f_all))
+    assert max(errs) < 0.05, errs
+
+
+def test_rom_follows_the_full_model_on_a_training_pattern(trained):
+    from solver.rom.train import drive
+    rom = Simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                     loaded_anatomy=trained["full"].anatomy, trust="warn", check_every=10)
+    task, res = trained["tasks"][0], trained["results"][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                     # no trust warning on training
+        rows = drive(rom, task["schedules"], task["duration"], task["interval"])
+    for key in ("lip_aperture", "lip_protrusion"):
+        d = max(abs(a[key] - b[key]) for a, b in zip(rows, res["rows"]))
+        assert d < 0.05, (key, d)
+    assert np.abs(rom.u.ravel() - res["U"][:, -1]).max() < 0.1
+    assert rom.trust_history and max(r for _, r in rom.trust_history) <= rom.trust_threshold
+    assert rom.last.converged and rom.mode == "rom"
+
+
+def test_model_file_round_trip_and_key_check(trained, tmp_path):
+    from solver.errors import FaceFMUError
+    from solver.rom.store import load_model, model_key, save_model
+    a, meta = trained["arrays"], trained["meta"]
+    path = save_model(tmp_path / "copy.npz", a, meta)
+    b, meta2 = load_model(path, model_key(trained["scene"]))
+    assert meta2 == meta
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    other = trained["scene"].with_overrides(lip_contact=False)
+    with pytest.raises(FaceFMUError, match="other settings"):
+        load_model(path, model_key(other))
+
+
+def test_trust_check_fires_far_outside_the_training_range(trained):
+    from solver.rom.simulation import TrustWarning
+    scene = trained["scene"].with_overrides(force_scale={"OOP": 6.0, "RIS": 6.0})
+    rom = Simulation(scene, fidelity="realtime", rom_model=trained["path"],
+                     loaded_anatomy=trained["full"].anatomy, check_every=5)
+    rom.set_activations({"OOP": 1.0, "RIS": 1.0})
+    with pytest.warns(TrustWarning, match="switching to the full model"):
+        for k in range(1, 5):
+            assert rom.step(0.005 * k).converged
+    assert rom.mode == "full" and rom.trust_history[-1][1] > rom.trust_threshold
+
+
+def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
+                                                                     monkeypatch):
+    from solver.rom import ModelNotTrained
+    monkeypatch.setenv("FACEFMU_ROM_DIR", str(tmp_path))
+    with pytest.raises(ModelNotTrained, match="benchmarks/rom_train.py"):
+        Simulation(Scene(driven=("OOP",)), fidelity="realtime")
