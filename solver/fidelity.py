@@ -13,20 +13,20 @@ meet, the most specific wins: keyword overrides of Simulation (and the command l
 --level, --full) over the preset given to Simulation, that preset over the scene file,
 and in a scene file its own keys over its [scene] fidelity.
 
-The presets are the points of the Pareto front (largest error over time in lip aperture
-and protrusion against CPU time) measured by `python benchmarks/accuracy_vs_time.py
---duration 0.05`: a lip gesture with contact, its first 0.05 s, against the fine half face
-at tight tolerances (docs/accuracy.md):
+The presets were picked from the Pareto front (largest error over time in lip aperture
+and protrusion against CPU time) of an earlier sweep over 0.05 s; the default sweep of
+`python benchmarks/accuracy_vs_time.py` (a 0.1 s lip gesture with contact, against the
+fine half face at DEFAULT tolerances; docs/accuracy.md) now measures them as:
 
     preset    mesh, DOF            error aperture / protrusion   real-time factor (CPU)
-    fast      coarse half, 3108    0.174 / 0.196 mm              57
-    balanced  medium half, 6300    0.113 / 0.013 mm              115
-    accurate  fine half, 50925     0.004 / 0.001 mm              3759  (time stepping only)
+    fast      coarse half, 3108    1.13 / 0.39 mm                1517
+    balanced  medium half, 6300    0.19 / 0.06 mm                241
+    accurate  fine half, 50925     the reference                 6972
 
-On that front: the half face (the full face gives the same lip outputs at about twice the
-cost), loose tolerances (at every level the mesh error dwarfs the time-stepping and Newton
-error, 0.004 mm), mean dilatation ("full" locks: 4 to 7 times the error). The paper level
-is off it: its error against fine (0.18 mm) is larger than medium's.
+On that gesture the coarse level is slower and less accurate than medium, so `fast` is
+off the front (not yet explained); the half face gives the full face's lip outputs,
+loose tolerances cost little accuracy against the mesh error, and mean dilatation is
+needed ("full" locks).
 """
 
 from .errors import ParameterError
