@@ -114,6 +114,7 @@ class Damping(Term):
         self._kdata = np.zeros(pattern.nnz)
         scatter_matrices(passive_tangent(self.elasticity, u_n), pattern.index[block],
                          self._kdata)
+        self._K = pattern.matrix(self._kdata)          # built once per K_n, not per residual
         self._pattern, self.u_geom = pattern, u_n.copy()
         self.builds += 1
 
@@ -122,7 +123,7 @@ class Damping(Term):
         v = v.ravel()
         f = self.alpha * self.m3 * v
         if self.beta and self._kdata is not None:
-            f += self.beta * (self._pattern.matrix(self._kdata) @ v)
+            f += self.beta * (self._K @ v)
         return f
 
     def assemble(self, state, asm, block_ids):
