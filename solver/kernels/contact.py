@@ -21,7 +21,10 @@ face, I - t t on an edge and I at a vertex.
 Side. The signed gap is g = -|d| when (x - c) . N_f <= 0 for the pseudo-normal N_f of the
 closest feature (face normal, mean of the two face normals of an edge, angle-weighted
 normal of a vertex), +|d| otherwise; g <= 0 is active. A closest point on a free boundary
-edge or vertex of an open surface has no side: such a node is out of contact.
+edge or vertex of an open surface has no side: such a node is out of contact on a
+deformable master; on a rigid one its penalty fades out beyond the edge
+(boundary_penalty: psi(a) phi(l / L) with the depth a behind the feature's plane and the
+distance l beyond it, C1 where it meets the face).
 
 Penalty. With the penetration p = -g = |d|, psi(p) is k F (pure penalty; a touching node,
 p = 0, carries the stiffness k hess F but no force) or, with an onset length e > 0, a
@@ -150,32 +153,44 @@ def nearest(p, xv, tris, cand, w, wt):
 
 @njit(cache=True)
 def locate(p, xv, tris, cand, fn, en, vn, free_edge, free_vertex, w, wt, xm):
-    """Nearest of the triangles cand (k,) to p (3,) and the side of p:
-    (position in cand or -1, region, distance, side), side = (p - c) . the pseudo-normal
-    of the closest feature (NaN on a free boundary feature); fills w (3,) its weights and
-    xm (3, 3) its vertices (wt (3,): work space)."""
+    """Nearest of the triangles cand (k,) to p (3,): (position in cand or -1, region,
+    distance |d|, side (p - c) . m, free, m) with m (3,) the (pseudo-)normal of the closest
+    feature and free whether that feature is a free boundary edge or vertex. Fills w (3,)
+    the weights and xm (3, 3) the vertices of the triangle (wt (3,): work space)."""
     j, region, d2 = nearest(p, xv, tris, cand, w, wt)
+    m = np.zeros(3)
     if j < 0:
-        return j, region, np.inf, np.nan
+        return j, region, np.inf, np.nan, False, m
     t = cand[j]
     for a in range(3):
         for i in range(3):
             xm[a, i] = xv[tris[t, a], i]
+    free = False
     if region == FACE:
-        m = fn[t]
+        m[:] = fn[t]
     elif region < VERTEX:
-        if free_edge[t, region - EDGE]:
-            return j, region, np.sqrt(d2), np.nan
-        m = en[t, region - EDGE]
+        free = free_edge[t, region - EDGE]
+        m[:] = en[t, region - EDGE]
     else:
         v = tris[t, region - VERTEX]
-        if free_vertex[v]:
-            return j, region, np.sqrt(d2), np.nan
-        m = vn[v]
+        free = free_vertex[v]
+        m[:] = vn[v]
     sd = 0.0
     for i in range(3):
         sd += (p[i] - w[0] * xm[0, i] - w[1] * xm[1, i] - w[2] * xm[2, i]) * m[i]
-    return j, region, np.sqrt(d2), sd
+    return j, region, np.sqrt(d2), sd, free, m
+
+
+@njit(cache=True)
+def signed_gaps(xs, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, gap):
+    """gap (s,): the signed distance of the points xs (s, 3) to their nearest candidate
+    triangle (cand[ptr[i]:ptr[i + 1]]); inf without a candidate or where the closest
+    feature is a free boundary (no side)."""
+    w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
+    for i in range(xs.shape[0]):
+        j, region, dist, sd, free, m = locate(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], fn,
+                                              en, vn, free_edge, free_vertex, w, wt, xm)
+        gap[i] = np.inf if j < 0 or free else (-dist if sd <= 0.0 else dist)
 
 
 @njit(cache=True)
@@ -261,27 +276,75 @@ def pair_penalty(x, xm, region, w, dist, k, onset, nloc, need_k, fe, ke):
 
 
 @njit(cache=True)
+def boundary_penalty(d, m, k, onset, fade, need_k, g, H):
+    """Penalty of a point beyond a free boundary feature, faded over the length fade (mm):
+    E = psi(a) phi(l / fade) with the depth a = -m . d behind the feature's plane (normal
+    m (3,)), the distance l = |d_perp| beyond it, d_perp = d - (m . d) m, psi the penalty
+    law and phi(s) = 1 - 3 s^2 + 2 s^3 (0 for s >= 1). Fills g (3,) dE/dd and H (3, 3)
+    d2E/dd2 (if need_k); returns (E, a phi), the second the faded depth reported as the
+    penetration (E = 0 where a <= 0 or l >= fade)."""
+    a = -(m @ d)
+    dp = d + a * m
+    l = np.sqrt(dp @ dp)
+    s = l / fade
+    g[:] = 0.0
+    if need_k:
+        H[:, :] = 0.0
+    if a <= 0.0 or s >= 1.0:
+        return 0.0, a
+    phi, q = 1.0 - s * s * (3.0 - 2.0 * s), -6.0 * (1.0 - s)     # q = phi'(s) / s
+    psi, dpsi, ca, cb = penalty_law(a, k, onset)
+    f2 = fade * fade
+    g[:] = -dpsi * phi * m + psi * q * dp / f2
+    if need_k:
+        ddpsi = ca + cb * a * a
+        r = 6.0 * psi / (f2 * fade * l) if l > 0.0 else 0.0
+        for i in range(3):
+            for j in range(3):
+                H[i, j] = (ddpsi * phi * m[i] * m[j]
+                           - dpsi * q * (m[i] * dp[j] + dp[i] * m[j]) / f2
+                           + psi * q * ((1.0 if i == j else 0.0) - m[i] * m[j]) / f2
+                           + r * dp[i] * dp[j])
+    return psi * phi, a * phi
+
+
+@njit(cache=True)
 def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, depth,
-                  onset, need_k, fe, ke, gap, force, tri):
+                  onset, need_k, fe, ke, gap, force, tri, fade=1.0):
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
-    (zero where inactive), gap (s,) (signed; inf without a candidate or on a free
-    boundary), force (s,) (normal force, N) and tri (s,) (nearest triangle or -1).
-    Active: g <= 0 and |g| <= depth. Returns the energy."""
+    (zero where inactive), gap (s,) (signed; inf without a candidate; beyond a free
+    boundary the depth behind its plane), force (s,) (N) and tri (s,) (nearest triangle or
+    -1). Active: g <= 0 and |g| <= depth; beyond a free boundary, the penalty faded over
+    fade (mm; boundary_penalty). Returns the energy."""
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
+    proj, g, H, d = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3)
     for i in range(xs.shape[0]):
         fe[i] = 0.0
         if need_k:
             ke[i] = 0.0
         gap[i], force[i], tri[i] = np.inf, 0.0, -1
-        j, region, dist, sd = locate(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], fn, en, vn,
-                                     free_edge, free_vertex, w, wt, xm)
+        j, region, dist, sd, free, m = locate(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], fn,
+                                              en, vn, free_edge, free_vertex, w, wt, xm)
         if j < 0:
             continue
         tri[i] = cand[ptr[i] + j]
         if not sd <= 0.0 or dist > depth:
-            gap[i] = dist if not np.isnan(sd) else np.inf
+            gap[i] = dist
+            continue
+        if free:                       # beyond a free edge or vertex: the faded penalty
+            distance_derivatives(xs[i], xm, region, w, 1, True, d, proj)
+            d[:] = xs[i] - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
+            psi, depth_i = boundary_penalty(d, m, k[i], onset, fade, need_k, g, H)
+            if psi <= 0.0:
+                gap[i] = dist
+                continue
+            fe[i] = proj @ g
+            if need_k:
+                ke[i] = proj @ H @ proj
+            gap[i], force[i] = -depth_i, np.sqrt(fe[i] @ fe[i])
+            energy += psi
             continue
         gap[i] = -dist
         psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, k[i], onset, 1, need_k,
@@ -291,16 +354,36 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
 
 
 @njit(cache=True)
+def _pair_free(pair_free, p, region):
+    """Whether the feature region of pair p lies on its slave's candidate boundary:
+    pair_free (p, 3) flags edge j of the pair's triangle; a vertex is free with either of
+    the triangle's edges at it."""
+    if region == FACE:
+        return False
+    if region < VERTEX:
+        return pair_free[p, region - EDGE]
+    v = region - VERTEX
+    return pair_free[p, v] or pair_free[p, (v + 2) % 3]
+
+
+@njit(cache=True)
 def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, free_vertex,
-                    depth, onset, need_k, fe, ke, gap, force, active, kept):
+                    depth, onset, need_k, fe, ke, gap, force, active, kept, pair_free=None,
+                    fade=1.0):
     """Slave nodes slaves (s,) with stiffness k (s,) on deformable triangles tris (t, 3),
     current node positions x (n, 3); the candidate pairs of slave i are
     ptr[i]:ptr[i + 1], with triangles pair_tri (p,). Keeps fe (p, 12), ke (p, 12, 12) zero
     but for each slave's active pair: active (s,) (that pair or -1; fe nonzero there) and
     kept (s,) (the pair whose ke is nonzero or -1) are read and updated. Fills gap (s,),
-    force (s,). Active: g <= 0 and |g| <= depth. Returns the energy."""
+    force (s,). Active: g <= 0 and |g| <= depth. Beyond a free edge or vertex of the
+    surface, or of the slave's candidates (pair_free (p, 3): edge j of the pair's triangle
+    borders no other candidate of its slave), the penalty fades over fade (mm;
+    boundary_penalty with the triangle's face normal; its tangent there is the slave's
+    N N^T (x) P H P, the sliding and rotation of the master left out). Returns the
+    energy."""
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
+    proj, g, H, d = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3)
     for i in range(slaves.shape[0]):
         if active[i] >= 0:
             fe[active[i]] = 0.0
@@ -309,14 +392,38 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             kept[i] = -1
         gap[i], force[i], active[i] = np.inf, 0.0, -1
         xs = x[slaves[i]]
-        j, region, dist, sd = locate(xs, x, tris, pair_tri[ptr[i]:ptr[i + 1]], fn, en, vn,
-                                     free_edge, free_vertex, w, wt, xm)
-        if j < 0:
-            continue
-        if not sd <= 0.0 or dist > depth:
-            gap[i] = dist if not np.isnan(sd) else np.inf
+        j, region, dist, sd, free, m = locate(xs, x, tris, pair_tri[ptr[i]:ptr[i + 1]], fn,
+                                              en, vn, free_edge, free_vertex, w, wt, xm)
+        if j < 0 or dist > depth:
+            gap[i] = dist
             continue
         p = ptr[i] + j
+        if pair_free is not None:
+            free = free or _pair_free(pair_free, p, region)
+        if free:                       # the faded penalty on the triangle's plane
+            d[:] = xs - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
+            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], onset, fade, need_k,
+                                            g, H)
+            if psi <= 0.0:
+                gap[i] = dist
+                continue
+            distance_derivatives(xs, xm, region, w, 1, True, d, proj)
+            f = proj @ g
+            nw = np.array([1.0, -w[0], -w[1], -w[2]])
+            for a in range(4):
+                fe[p, 3 * a:3 * a + 3] = nw[a] * f
+            if need_k:
+                kp = proj @ H @ proj
+                for a in range(4):
+                    for b in range(4):
+                        ke[p, 3 * a:3 * a + 3, 3 * b:3 * b + 3] = nw[a] * nw[b] * kp
+                kept[i] = p
+            gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
+            energy += psi
+            continue
+        if not sd <= 0.0:
+            gap[i] = dist
+            continue
         gap[i], active[i] = -dist, p
         if need_k:
             kept[i] = p

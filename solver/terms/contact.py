@@ -10,9 +10,21 @@ triangles; on a face, an edge or a vertex of a triangle), d = x - c, and
 with N the pseudo-normal of the closest feature (the face's normal; on an edge the mean of
 its two faces' normals; at a vertex the angle-weighted normal): the signed distance to the
 surface, negative inside. The outward normal is n = -d / |d| for g < 0 (the face normal
-on a face). An open sheet (the teeth) has free boundary edges: a node whose closest point
-lies on one (or on a free boundary vertex) has no side and is out of contact, so there is
-no contact beyond the sheet's edge (a lip may wrap around the incisors' edge).
+on a face). An open sheet (the teeth) has free boundary edges. Beyond one (the closest
+point on a free edge or vertex, N its face normal or vertex normal) a rigid sheet's
+penalty fades out: with the depth a = -N . d behind the sheet's plane and the distance
+l = |d + a N| beyond the edge,
+
+    Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
+
+psi the penalty law below and L = fade (1 mm: the incisal edge rounded over about its
+thickness). At l = 0 this is the face's energy (d is along N there) and phi'(0) = 0, so
+Psi is C1 across the edge, and a lip may still wrap around the incisors' edge. An earlier
+version released such a node outright, a force jump of k_i a: on the coarse generic face
+a lip node 0.29 mm deep flipped between a face (5 N) and the edge (0 N) from one Newton
+iterate to the next, and the opening-rounding gesture of benchmarks/accuracy_vs_time.py
+took 155 s with 38 cutbacks instead of 52 s with none. The reported gap of such a node is
+-a phi. Deformable masters (LipContact) still release a node beyond a free edge.
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
 below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
@@ -93,11 +105,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import ParameterError
-from ..kernels.contact import (nearest, pair_distances, rigid_contact, surface_contact,
-                               surface_normals)
+from ..kernels.contact import (nearest, pair_distances, rigid_contact, signed_gaps,
+                               surface_contact, surface_normals)
 from .base import Term
 
 PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
+EDGE_FADE = 1.0            # mm: the penalty fades out over this distance beyond a free edge
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
@@ -295,12 +308,16 @@ class RigidContact(Term, _Report):
     margin          mm: slave motion allowed before the candidate lists are rebuilt
     rest_tolerance  mm: slaves behind the surface at rest by more are dropped
     onset           mm: length of the cubic onset of the penalty (0: pure penalty)
+    fade            mm: beyond a free edge of the surface the penalty fades over this length
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
-                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, onset=0.0):
+                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, onset=0.0,
+                 fade=EDGE_FADE):
         _check(penalty, onset)
-        self.name, self.mesh, self.onset = name, mesh, float(onset)
+        if not fade > 0:
+            raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
+        self.name, self.mesh, self.onset, self.fade = name, mesh, float(onset), float(fade)
         slaves = np.asarray(slave_nodes, dtype=np.int64).ravel()
         self.vertices = np.ascontiguousarray(surface.vertices, dtype=np.float64)
         tris = np.ascontiguousarray(surface.triangles, dtype=np.int64)
@@ -335,12 +352,10 @@ class RigidContact(Term, _Report):
         """(s,) signed gaps of points x (s, 3) to the triangles tris, whatever their
         distance."""
         normals = _Normals(tris, len(self.vertices)).update(self.vertices)
-        s = len(x)
         ptr, cand = _nearest_lists(self.vertices, tris, x)
-        gap = np.empty(s)
-        rigid_contact(np.ascontiguousarray(x), np.zeros(s), self.vertices, tris, ptr, cand,
-                      *normals.args(), np.inf, 0.0, False, np.zeros((s, 3)),
-                      np.zeros((s, 3, 3)), gap, np.zeros(s), -np.ones(s, dtype=np.int64))
+        gap = np.empty(len(x))
+        signed_gaps(np.ascontiguousarray(x), self.vertices, tris, ptr, cand, *normals.args(),
+                    gap)
         return gap
 
     def blocks(self):
@@ -360,7 +375,8 @@ class RigidContact(Term, _Report):
         gap, force = np.empty(len(x)), np.empty(len(x))
         asm.energy += rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand,
                                     *self.normals.args(), self.search_radius, self.onset,
-                                    asm.need_k, self._fe, self._ke, gap, force, self.tri)
+                                    asm.need_k, self._fe, self._ke, gap, force, self.tri,
+                                    self.fade)
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)
         nodal = np.zeros((self.mesh.n_nodes, 3))
         nodal[self.slaves] = -self._fe
@@ -381,13 +397,17 @@ class LipContact(Term, _Report):
     onset          mm: length of the cubic onset of the penalty (0: pure penalty)
     mirror_nodes   node ids on the symmetry plane x = 0 of a half model (its 'midsagittal'
                    set): surface edges between two of them are mirrored, not free
+    fade           mm: beyond a free edge (of the surface or of a slave's candidates) the
+                   penalty fades over this length
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
                  radius=6.0, max_pairs=12, depth=0.5, rest_tolerance=0.1, onset=0.0,
-                 mirror_nodes=None):
+                 mirror_nodes=None, fade=EDGE_FADE):
         _check(penalty, onset)
-        self.name, self.mesh = name, mesh
+        if not fade > 0:
+            raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
+        self.name, self.mesh, self.fade = name, mesh, float(fade)
         self.depth, self.onset = float(depth), float(onset)
         n = mesh.n_nodes
         mirror = None
@@ -400,13 +420,14 @@ class LipContact(Term, _Report):
         self.passes, dropped = [], []
         for s, m in ((0, 1), (1, 0)):
             slaves = np.setdiff1d(np.unique(surf[s]), np.unique(surf[m]))
-            slaves, ptr, pair_tri, out = self._pairs(slaves, s, m, radius, max_pairs,
-                                                     rest_tolerance)
+            slaves, ptr, pair_tri, pair_free, out = self._pairs(slaves, s, m, radius,
+                                                                max_pairs, rest_tolerance)
             dropped.append(out)
             p = len(pair_tri)
             owner = np.repeat(np.arange(len(slaves)), np.diff(ptr))
             self.passes.append({
                 "slaves": slaves, "master": m, "ptr": ptr, "pair_tri": pair_tri,
+                "pair_free": pair_free,
                 "k": penalty * areas[s][slaves],
                 "nodes": np.column_stack([slaves[owner], surf[m][pair_tri]]),
                 "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
@@ -455,8 +476,13 @@ class LipContact(Term, _Report):
         keep = (np.diff(ptr) > 0) & ~inside
         new = np.cumsum(keep) - 1
         sel = keep[si]
+        # an edge is free for a slave when it borders none of the slave's other candidates
+        nbr = self.normals[m].topo.nbr[ti]                               # (p, 3)
+        key = si * len(tris) + ti
+        inner = np.isin(si[:, None] * len(tris) + nbr, key) | (nbr < 0)
+        free = ~inner | self.normals[m].topo.free_edge[ti]
         return (slaves[keep], np.searchsorted(new[si[sel]], np.arange(keep.sum() + 1)),
-                ti[sel], slaves[inside])
+                ti[sel], np.ascontiguousarray(free[sel]), slaves[inside])
 
     def blocks(self):
         return [q["nodes"] for q in self.passes]
@@ -471,7 +497,7 @@ class LipContact(Term, _Report):
             asm.energy += surface_contact(x, q["slaves"], q["k"], nrm.tris, q["ptr"],
                                           q["pair_tri"], *nrm.args(), self.depth, self.onset,
                                           asm.need_k, q["fe"], q["ke"], gap, force,
-                                          q["active"], q["kept"])
+                                          q["active"], q["kept"], q["pair_free"], self.fade)
             act = q["active"][q["active"] >= 0]
             asm.add_block(b, q["fe"][act], q["ke"][act] if asm.need_k else None, rows=act)
             np.add.at(nodal, q["nodes"][act], -q["fe"][act].reshape(-1, 4, 3))
