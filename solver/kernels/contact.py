@@ -310,16 +310,14 @@ def boundary_penalty(d, m, k, onset, fade, need_k, g, H):
 
 @njit(cache=True)
 def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, depth,
-                  onset, need_k, fe, ke, gap, force, tri, fade=1.0):
+                  onset, need_k, fe, ke, gap, force, tri):
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
-    (zero where inactive), gap (s,) (signed; inf without a candidate; beyond a free
-    boundary the depth behind its plane), force (s,) (N) and tri (s,) (nearest triangle or
-    -1). Active: g <= 0 and |g| <= depth; beyond a free boundary, the penalty faded over
-    fade (mm; boundary_penalty). Returns the energy."""
+    (zero where inactive), gap (s,) (signed; inf without a candidate or beyond a free
+    boundary), force (s,) (N) and tri (s,) (nearest triangle or -1). Active: g <= 0 and
+    |g| <= depth. Returns the energy."""
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
-    proj, g, H, d = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3)
     for i in range(xs.shape[0]):
         fe[i] = 0.0
         if need_k:
@@ -330,21 +328,10 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
         if j < 0:
             continue
         tri[i] = cand[ptr[i] + j]
+        if free:                       # beyond a free edge or vertex: no side
+            continue
         if not sd <= 0.0 or dist > depth:
             gap[i] = dist
-            continue
-        if free:                       # beyond a free edge or vertex: the faded penalty
-            distance_derivatives(xs[i], xm, region, w, 1, True, d, proj)
-            d[:] = xs[i] - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
-            psi, depth_i = boundary_penalty(d, m, k[i], onset, fade, need_k, g, H)
-            if psi <= 0.0:
-                gap[i] = dist
-                continue
-            fe[i] = proj @ g
-            if need_k:
-                ke[i] = proj @ H @ proj
-            gap[i], force[i] = -depth_i, np.sqrt(fe[i] @ fe[i])
-            energy += psi
             continue
         gap[i] = -dist
         psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, k[i], onset, 1, need_k,

@@ -10,24 +10,24 @@ triangles; on a face, an edge or a vertex of a triangle), d = x - c, and
 with N the pseudo-normal of the closest feature (the face's normal; on an edge the mean of
 its two faces' normals; at a vertex the angle-weighted normal): the signed distance to the
 surface, negative inside. The outward normal is n = -d / |d| for g < 0 (the face normal
-on a face). An open sheet (the teeth) has free boundary edges. Beyond one (the closest
-point on a free edge or vertex, N its face normal or vertex normal) a rigid sheet's
-penalty fades out: with the depth a = -N . d behind the sheet's plane and the distance
-l = |d + a N| beyond the edge,
+on a face). An open sheet (the teeth) has free boundary edges: a node whose closest point
+lies on one (or on a free boundary vertex) has no side and is out of contact on the rigid
+teeth, so there is no contact beyond the sheet's edge (a lip may wrap around the incisors'
+edge). On the lips (LipContact) such a node is not released but its penalty fades out,
+on the plane of the nearest triangle (normal N): with the depth a = -N . d behind it and
+the distance l = |d + a N| beyond the edge,
 
     Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
 
-psi the penalty law below and L = fade (1 mm: the incisal edge rounded over about its
-thickness). At l = 0 this is the face's energy (d is along N there) and phi'(0) = 0, so
-Psi is C1 across the edge, and a lip may still wrap around the incisors' edge. An earlier
-version released such a node outright, a force jump of k_i a: on the coarse generic face
-a lip node 0.29 mm deep flipped between a face (5 N) and the edge (0 N) from one Newton
-iterate to the next, and the opening-rounding gesture of benchmarks/accuracy_vs_time.py
-took 155 s with 38 cutbacks instead of 52 s with none. The reported gap of such a node is
--a phi. LipContact fades the same way, on the plane of the nearest triangle, beyond a
-free edge of the lip surface and beyond an edge of a slave's candidate set that borders
-no other candidate (see LipContact below); there the tangent leaves out the master's
-rotation and sliding (its residual stays exact and continuous).
+psi the penalty law below and L = fade (1 mm). At l = 0 this is the face's energy (d is
+along N there) and phi'(0) = 0, so Psi is C1 across the edge; the reported gap is
+-a phi. The tangent there leaves out the master's rotation and sliding. (The same fade on
+the teeth was tried: with the face normal on the free edges and the vertex normal at
+free vertices it took the coarse opening-rounding gesture of
+benchmarks/accuracy_vs_time.py from 155 s with 38 cutbacks to 52 s with none, but a
+static BUC solve then hung on the jump where a node passes from a free edge's region to a
+free vertex's; with normals interpolated along the boundary the gesture took 250 s.
+A fade continuous at both needs a normal blended across each boundary vertex's wedge.)
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
 below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
@@ -116,7 +116,7 @@ from ..kernels.contact import (nearest, pair_distances, rigid_contact, signed_ga
 from .base import Term
 
 PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
-EDGE_FADE = 1.0            # mm: the penalty fades out over this distance beyond a free edge
+EDGE_FADE = 1.0            # mm: lip contact fades out over this distance beyond a free edge
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
@@ -314,16 +314,12 @@ class RigidContact(Term, _Report):
     margin          mm: slave motion allowed before the candidate lists are rebuilt
     rest_tolerance  mm: slaves behind the surface at rest by more are dropped
     onset           mm: length of the cubic onset of the penalty (0: pure penalty)
-    fade            mm: beyond a free edge of the surface the penalty fades over this length
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
-                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, onset=0.0,
-                 fade=EDGE_FADE):
+                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, onset=0.0):
         _check(penalty, onset)
-        if not fade > 0:
-            raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
-        self.name, self.mesh, self.onset, self.fade = name, mesh, float(onset), float(fade)
+        self.name, self.mesh, self.onset = name, mesh, float(onset)
         slaves = np.asarray(slave_nodes, dtype=np.int64).ravel()
         self.vertices = np.ascontiguousarray(surface.vertices, dtype=np.float64)
         tris = np.ascontiguousarray(surface.triangles, dtype=np.int64)
@@ -381,8 +377,7 @@ class RigidContact(Term, _Report):
         gap, force = np.empty(len(x)), np.empty(len(x))
         asm.energy += rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand,
                                     *self.normals.args(), self.search_radius, self.onset,
-                                    asm.need_k, self._fe, self._ke, gap, force, self.tri,
-                                    self.fade)
+                                    asm.need_k, self._fe, self._ke, gap, force, self.tri)
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)
         nodal = np.zeros((self.mesh.n_nodes, 3))
         nodal[self.slaves] = -self._fe
