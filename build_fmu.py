@@ -1,10 +1,15 @@
 """Build dist/FaceFMU.fmu: the slave script with the solver and facefmu packages bundled.
 
-    python build_fmu.py [--dest dist]
+    python build_fmu.py [--dest dist] [--rom FILE.npz ...] [--with-realtime]
 
 The FMU runs in the importer's Python (needsExecutionTool="false"): numpy, scipy, numba
 (and pypardiso where available) must be installed there; resources/requirements.txt lists
 them. canGetAndSetFMUstate and canSerializeFMUstate are on.
+
+Reduced-order (`fidelity = "realtime"`) models: --rom packs trained model files
+(solver.rom.store, e.g. from ~/.cache/facefmu/rom) into the FMU's resources/rom, where the
+slave looks first; --with-realtime packs the cached model of the built-in `speech` scene
+(all ten muscles, lip and teeth contact: `python benchmarks/rom_train.py` trains it).
 """
 
 import argparse
@@ -21,7 +26,22 @@ pypardiso>=0.4.6; platform_machine == 'x86_64'
 """
 
 
-def build(dest=ROOT / "dist"):
+def realtime_model(scene="speech"):
+    """The cached realtime model file of a scene (built-in name or TOML path); SystemExit
+    naming the training command when there is none."""
+    sys.path.insert(0, str(ROOT))
+    from solver.fidelity import apply_fidelity
+    from solver.rom.store import model_path
+    from solver.simulation import resolve_scene
+    path = model_path(apply_fidelity(resolve_scene(scene), "realtime"))
+    if not path.is_file():
+        raise SystemExit(f"no trained realtime model of scene {scene!r} at {path}; train "
+                         f"it with: python benchmarks/rom_train.py --scene {scene}")
+    return path
+
+
+def build(dest=ROOT / "dist", roms=()):
+    """Build FaceFMU.fmu into dest; roms: model files (.npz) packed into resources/rom."""
     from pythonfmu.builder import FmuBuilder
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
@@ -33,11 +53,22 @@ def build(dest=ROOT / "dist"):
         script = tmp / "facefmu_slave.py"
         shutil.move(tmp / "facefmu" / "facefmu_slave.py", script)
         (tmp / "requirements.txt").write_text(REQUIREMENTS)
+        files = [tmp / "solver", tmp / "facefmu", tmp / "requirements.txt"]
+        if roms:
+            sys.path.insert(0, str(ROOT))
+            from solver.rom.store import file_name, load_model
+            (tmp / "rom").mkdir()
+            for path in roms:
+                path = Path(path)
+                if not path.is_file():
+                    raise SystemExit(f"--rom {path}: no such file")
+                # filed under its key's name, where the slave looks for the scene's model
+                shutil.copy2(path, tmp / "rom" / file_name(load_model(path)[1]["key"]))
+            files.append(tmp / "rom")
         sys.path.insert(0, str(tmp))
         try:
             fmu = FmuBuilder.build_FMU(
-                script, dest=dest / "FaceFMU.fmu",
-                project_files=[tmp / "solver", tmp / "facefmu", tmp / "requirements.txt"],
+                script, dest=dest / "FaceFMU.fmu", project_files=files,
                 needsExecutionTool="false", canGetAndSetFMUstate="true",
                 canSerializeFMUstate="true")
         finally:
@@ -48,8 +79,13 @@ def build(dest=ROOT / "dist"):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dest", default=str(ROOT / "dist"))
+    ap.add_argument("--rom", action="append", default=[], metavar="FILE.npz",
+                    help="a trained realtime model to pack into resources/rom (repeatable)")
+    ap.add_argument("--with-realtime", action="store_true",
+                    help="pack the cached realtime model of the built-in 'speech' scene")
     args = ap.parse_args(argv)
-    print(build(args.dest))
+    roms = list(args.rom) + ([realtime_model()] if args.with_realtime else [])
+    print(build(args.dest, roms))
 
 
 if __name__ == "__main__":

@@ -7,8 +7,8 @@
     python benchmarks/rom_train.py --accuracy [--scene SCENE] [--model FILE.npz]
                                    [--gestures oop_ris,open,open_round] [--md FILE]
 
-SCENE: a built-in scene, a TOML file, or `speech` (the default: all ten muscles driven,
-transient, lip and teeth contact on, the generic face). The model is trained for the
+SCENE: a built-in scene or a TOML file; the default, `speech` (solver/scenes/speech.toml),
+drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
 scene's full-order model at the realtime knobs (solver.fidelity.REDUCED: coarse generic
 half face) and cached in the user cache (solver.rom.store; the path is printed), where
 `Simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
@@ -28,17 +28,12 @@ if __package__ in (None, ""):                     # run as a script: the reposit
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.table import report  # noqa: E402
 
-SPEECH = {"scene": {"name": "speech", "analysis": "transient", "duration": 0.3,
-                    "description": "all ten muscles, lip and teeth contact"},
-          "effects": {"lip_contact": True, "teeth_contact": True}}
-
-
 def load(name):
+    """The scene `name` (built-in or TOML file) at the realtime knobs (the full-order
+    model the reduced one is trained on)."""
     from solver.fidelity import apply_fidelity
-    from solver.scene import parse_scene
     from solver.simulation import resolve_scene
-    scene = parse_scene(SPEECH) if name == "speech" else resolve_scene(name)
-    return apply_fidelity(scene, "realtime")
+    return apply_fidelity(resolve_scene(name).with_overrides(fidelity=""), "realtime")
 
 
 def train_main(args):
@@ -61,7 +56,7 @@ def accuracy_main(args):
     scene = load(args.scene)
     rom = Simulation(scene, fidelity="realtime", rom_model=args.model,
                      check_every=args.check_every)
-    full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)
+    full = Simulation(rom.scene.with_overrides(fidelity=""), loaded_anatomy=rom.anatomy)
     m = rom.rom_meta
     print(f"model: {m['basis_size']} modes, {m['bricks_selected']} of {m['bricks_total']} "
           f"bricks, trained on {m['runs']} runs in {m['train_s']:.0f} s")

@@ -3,8 +3,8 @@
     facefmu version
     facefmu anatomy SPEC [--level coarse|medium|paper|fine] [--half]
                          [--export FILE.vtu|FILE.xdmf] [--png FILE.png]
-    facefmu run SCENE [--out DIR] [--fidelity fast|balanced|accurate] [--anatomy SPEC]
-                      [--level L] [--full] [--vtu]
+    facefmu run SCENE [--out DIR] [--fidelity fast|balanced|accurate|realtime]
+                      [--anatomy SPEC] [--level L] [--full] [--vtu]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
 print one line to stderr naming the culprit and exit with status 2. A subcommand is an
@@ -17,7 +17,7 @@ import sys
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.anatomy.load import LEVELS, load_anatomy
 from solver.errors import FaceFMUError
-from solver.fidelity import FIDELITIES
+from solver.fidelity import FIDELITIES, REDUCED
 
 from . import run_scene
 
@@ -130,10 +130,11 @@ def _landmark_table(anatomy):
 
 def _run_arguments(parser):
     run_scene.add_arguments(parser)
-    parser.add_argument("--fidelity", choices=FIDELITIES, metavar="NAME",
+    parser.add_argument("--fidelity", choices=FIDELITIES + tuple(REDUCED), metavar="NAME",
                         help=f"a fidelity preset ({', '.join(FIDELITIES)}) for the level, "
                              "half face and solver tolerances; --level and --full win "
-                             "over it (default: the scene's own settings)")
+                             "over it (default: the scene's own settings); 'realtime': "
+                             "the scene's trained reduced-order model (docs/realtime.md)")
 
 
 def _run(args):
@@ -141,6 +142,8 @@ def _run(args):
         from solver.fidelity import apply_fidelity
         from solver.simulation import resolve_scene
         args.scene = apply_fidelity(resolve_scene(args.scene), args.fidelity)
+        if args.fidelity in REDUCED:                 # the reduced model of that scene
+            args.scene = args.scene.with_overrides(fidelity=args.fidelity)
     return run_scene.run(args)
 
 

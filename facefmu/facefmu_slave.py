@@ -15,7 +15,10 @@ What a master sees:
 * fidelity: "" (default) runs the scene with the parameters level, half_face, tolerance and
   max_substep; a preset of solver.fidelity (fast, balanced, accurate) sets those itself
   (and the Newton tolerance and element formulation): the four parameters are then not
-  used, with a warning for each one set away from its default.
+  used, with a warning for each one set away from its default. "realtime" runs the
+  scene's reduced-order model (solver.rom): the one packed in the FMU's resources/rom
+  (python build_fmu.py --rom FILE or --with-realtime), else the user's cache; without a
+  model for the scene, initialization logs the training command and ends in fmi2Fatal.
 Outputs change only in doStep (no direct feedthrough).
 """
 
@@ -28,7 +31,7 @@ from pythonfmu.enums import Fmi2Status
 from pythonfmu.default_experiment import DefaultExperiment
 
 from solver.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
-from solver.fidelity import FIDELITIES, fidelity_overrides
+from solver.fidelity import FIDELITIES, REDUCED, fidelity_overrides
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
@@ -97,7 +100,8 @@ class FaceFMU(Fmi2Slave):
         self.register_variable(Real("max_substep", description="largest substep", **fixed))
         self.register_variable(String("fidelity", description="'' (the scene with level, "
                                       "half_face, tolerance, max_substep) or a preset: "
-                                      + ", ".join(FIDELITIES), **fixed))
+                                      + ", ".join(FIDELITIES + tuple(REDUCED))
+                                      + " (reduced-order; trained per scene)", **fixed))
         self.sim = None
         self.time = 0.0
         self._used = None
@@ -137,11 +141,23 @@ class FaceFMU(Fmi2Slave):
                     self.log(f"parameter {name} = {getattr(self, name)!r} not used: fidelity "
                              f"{self.fidelity!r} sets it", Fmi2Status.warning)
         from solver.simulation import resolve_scene
-        if resolve_scene(self.scene).linear_solver == "auto":
+        scene = resolve_scene(self.scene)
+        if self.fidelity in REDUCED or scene.fidelity in REDUCED:
+            out["rom_dirs"] = self._rom_dirs()
+        if scene.linear_solver == "auto":
             # MKL PARDISO loaded inside an FMU made fmpy's process abort at exit (heap
             # corruption found by mkl_core_fini); a scene can still ask for "pardiso"
             out["linear_solver"] = "superlu"
         return out
+
+    def _rom_dirs(self):
+        """Where reduced models are looked for first: the FMU's resources/rom."""
+        from pathlib import Path
+        if self.resources:
+            folder = Path(self.resources) / "rom"
+            if folder.is_dir():
+                return [folder]
+        return []
 
     # -- stepping ------------------------------------------------------------------------
     def _refuse(self, message):

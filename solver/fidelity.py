@@ -5,6 +5,9 @@
     [scene] fidelity = "fast"                           # a scene file
     fidelity = "accurate"                               # the FMU's String parameter
 
+and, in all four places, "realtime": the reduced-order model of solver.rom (REDUCED
+below; docs/realtime.md).
+
 A preset replaces the numerical fields of a scene: the mesh level (of the generic face; an
 ANSYS face keeps its own mesh), half face, substep error tolerance and largest substep,
 Newton tolerance and element formulation. The model itself (anatomy, muscles, effects such
@@ -43,8 +46,9 @@ FIDELITIES = tuple(PRESETS)
 
 # --- reduced-order fidelities (solver.rom; issue 10) -----------------------------------
 # Not presets of the full-order solver (not in FIDELITIES nor PRESETS): Simulation(...,
-# fidelity="realtime") builds a solver.rom.simulation.ReducedSimulation, whose full-order
-# model (training snapshots, fallback) has these knobs. Scene files do not take them.
+# fidelity="realtime"), a scene file's `fidelity = "realtime"`, `facefmu run --fidelity
+# realtime` and the FMU's fidelity parameter build a solver.rom.simulation.
+# ReducedSimulation, whose full-order model (training snapshots, fallback) has these knobs.
 REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatation",
                             **LOOSE)}
 
@@ -60,5 +64,7 @@ def fidelity_overrides(name):
 
 
 def apply_fidelity(scene, name):
-    """A new Scene: `scene` (solver.scene.Scene) with the preset `name`'s fields."""
+    """A new Scene: `scene` (solver.scene.Scene) with the preset `name`'s fields (its
+    `fidelity` field, which makes Simulation build the reduced model for "realtime", is
+    left as it was: the full-order model at the realtime knobs is this scene)."""
     return scene.with_overrides(**fidelity_overrides(name))

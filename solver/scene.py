@@ -11,7 +11,9 @@ recorded outputs and, for standalone runs, activation schedules.
     duration = 0.3                  # s (standalone runs)
     fidelity = "balanced"           # optional: a preset of solver.fidelity (fast |
                                     # balanced | accurate) for the level, half face and
-                                    # solver tolerances; keys written in this file win
+                                    # solver tolerances; keys written in this file win;
+                                    # "realtime": the reduced-order model (solver.rom,
+                                    # trained per scene: benchmarks/rom_train.py)
 
     [anatomy]
     source = "generic"              # "generic" or an ANSYS face folder
@@ -81,7 +83,7 @@ import numpy as np
 
 from .anatomy.base import MUSCLE_NAMES
 from .errors import FaceFMUError
-from .fidelity import FIDELITIES, fidelity_overrides
+from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
 
 ANALYSES = ("static", "transient")
 LEVELS = ("coarse", "medium", "paper", "fine")
@@ -147,6 +149,7 @@ class Scene:
     record: tuple = ("lip_aperture", "lip_protrusion", "lip_width")
     interval: float = 0.005
     schedules: tuple = ()
+    fidelity: str = ""              # the file's named fidelity ("realtime": the ROM)
 
     @property
     def effects(self):
@@ -242,7 +245,7 @@ SECTIONS = {
     "scene": {"name": ("name", _string), "description": ("description", _string),
               "analysis": ("analysis", _choice(ANALYSES)),
               "duration": ("duration", _number(0.0, strict_lo=True)),
-              "fidelity": ("fidelity", _choice(FIDELITIES))},
+              "fidelity": ("fidelity", _choice(FIDELITIES + tuple(REDUCED)))},
     "anatomy": {"source": ("anatomy", _string), "level": ("level", _choice(LEVELS)),
                 "half": ("half", _bool), "rows": ("rows", _integer(1, 4))},
     "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales)},
@@ -322,7 +325,8 @@ def parse_scene(data, source="<scene>"):
             except ValueError as exc:
                 raise SceneError(source, f"{section}.{key}", str(exc)) from None
     if "fidelity" in values:                       # the preset under the file's own keys
-        values = fidelity_overrides(values.pop("fidelity")) | values
+        name = values.pop("fidelity")
+        values = fidelity_overrides(name) | values | {"fidelity": name}
     scene = Scene(**values)
     items = data.get("schedule", [])
     if not isinstance(items, list):

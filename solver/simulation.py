@@ -53,12 +53,18 @@ class Simulation:
     loaded_anatomy: an Anatomy already in memory (instead of loading the scene's)."""
 
     def __new__(cls, *args, **kwargs):
-        # --- reduced-order fidelity hook (solver.rom, issue 10): fidelity="realtime" builds
-        # a solver.rom.simulation.ReducedSimulation (this API, the reduced model behind it)
+        # --- reduced-order fidelity hook (solver.rom, issue 10): fidelity="realtime", given
+        # here or in the scene (file), builds a solver.rom.simulation.ReducedSimulation
+        # (this API, the reduced model behind it)
         from .fidelity import REDUCED
-        if cls is Simulation and kwargs.get("fidelity") in REDUCED:
-            from .rom.simulation import ReducedSimulation
-            return super().__new__(ReducedSimulation)
+        if cls is Simulation:
+            name = kwargs.get("fidelity")
+            if name is None:
+                scene = args[0] if args else kwargs.get("scene", "default")
+                name = getattr(resolve_scene(scene), "fidelity", "")
+            if name in REDUCED:
+                from .rom.simulation import ReducedSimulation
+                return super().__new__(ReducedSimulation)
         return super().__new__(cls)
 
     def __init__(self, scene="default", loaded_anatomy=None, fidelity=None, **overrides):

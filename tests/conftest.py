@@ -1,4 +1,5 @@
-"""Shared fixtures: a random generator, and the FMU built once per test session."""
+"""Shared fixtures: a random generator, the FMU built once per test session, and a tiny
+realtime (reduced-order) model trained once per session."""
 
 import subprocess
 import sys
@@ -36,3 +37,33 @@ def exit_crash_is_known(run):
     if run.returncode != 0:
         pytest.xfail(f"the fmpy process crashed at exit (code {run.returncode}) after "
                      "finishing: known pythonfmu heap corruption at interpreter exit")
+
+
+ROM_DRIVEN = ("RIS", "DLI", "OOP")
+
+
+@pytest.fixture(scope="session")
+def trained(tmp_path_factory):
+    """A realtime model trained in this process on a tiny set: the coarse generic half face
+    with OOP, RIS and DLI driven, teeth and lip contact, 3 full-order runs of 0.05 s (5 ms
+    snapshots; none read from or kept in the user's snapshot cache). The model is saved as
+    model.npz and under its key's name in `folder` (for FACEFMU_ROM_DIR look-ups)."""
+    import shutil as _shutil
+
+    from solver.fidelity import apply_fidelity
+    from solver.rom.store import load_model, model_path
+    from solver.rom.train import collect, snapshot_tasks, train
+    from solver.scene import Scene
+    from solver.simulation import Simulation
+    folder = tmp_path_factory.mktemp("rom")
+    scene = apply_fidelity(Scene(name="rom_test", driven=ROM_DRIVEN, lip_contact=True,
+                                 teeth_contact=True), "realtime")
+    full = Simulation(scene)
+    path = train(scene, sim=full, runs=3, duration=0.05, interval=0.005, seed=3,
+                 calibration_runs=1, out=folder / "model.npz", progress=False, sim_only=True)
+    _shutil.copy(path, model_path(full.scene, folder))
+    arrays, meta = load_model(path)
+    tasks = snapshot_tasks(full.scene, 3, 0.05, 0.005, 3)       # the same patterns
+    results = collect(full.scene, tasks, sim=full, progress=False)
+    return {"scene": full.scene, "full": full, "path": path, "arrays": arrays, "meta": meta,
+            "tasks": tasks, "results": results, "folder": folder}

@@ -8,12 +8,13 @@ Offline (solver.rom.train): full-order snapshot runs under random activation pat
 (dask tasks), a POD displacement basis V on the free DOFs (solver.rom.pod: u = V q), an
 ECSW empirical cubature of the internal forces over a few bricks (solver.rom.ecsw), the
 reduced mass and rest stiffness, and a calibrated trust threshold; one .npz per scene key
-(solver.rom.store). Online (solver.rom.simulation, solver.rom.reduced): backward Euler in
-q with inertia V^T M V, constant damping alpha V^T M V + beta V^T K_0 V, the cubature
-bricks (tissue and activation stiffening, solver.rom.kernels), every cable exactly, and
-the penalty contact terms evaluated on the displacements of their nodes only and
-projected; a periodic full-order residual check that warns or falls back to the full
-model when the state leaves the trained range.
+(solver.rom.store). Online (solver.rom.simulation, .stepper, .online): backward Euler in
+q with inertia V^T M V, damping alpha V^T M V + beta V^T K_n V (K_n on the current shape,
+by the cubature), the cubature bricks (tissue and activation stiffening), every cable
+exactly, and the penalty contact terms' own kernels on their nodes only (.contact),
+projected; modified Newton with a frozen reduced tangent; a periodic full-order residual
+check (.trust) that warns or falls back to the full model when the state leaves the
+trained range. solver.rom.reduced is the first, slower implementation: the reference.
 """
 
 from .store import ModelNotTrained, load_model, model_key, model_path, save_model

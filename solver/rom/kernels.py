@@ -99,3 +99,64 @@ def element_forces(u, bricks, dndX, wgp, params, form, sparams, s, out):
             _element(ue, dndX[e], wgp[e], sparams[e], 1, False, fs, dummy)
             for c in range(24):
                 out[e, c] += s[e] * fs[c]
+
+
+@njit(cache=True)
+def _project_k(Vb, ke, we, kv, kr):
+    """kr (r, r) += we Vb^T ke Vb (upper triangle only), Vb (24, r); kv (24, r) work."""
+    r = Vb.shape[1]
+    for c in range(24):
+        for j in range(r):
+            acc = 0.0
+            for d in range(24):
+                acc += ke[c, d] * Vb[d, j]
+            kv[c, j] = acc
+    for i in range(r):
+        for j in range(i, r):
+            acc = 0.0
+            for c in range(24):
+                acc += Vb[c, i] * kv[c, j]
+            kr[i, j] += we * acc
+
+
+@njit(cache=True)
+def _symmetrize(kr):
+    r = kr.shape[0]
+    for i in range(r):
+        for j in range(i + 1, r):
+            kr[j, i] = kr[i, j]
+
+
+@njit(cache=True)
+def brick_tangents_split(q, Ve, w, dndX, wgp, params, form, sparams, slot, kt, ks):
+    """The cubature's tangent at q split by activation: kt (r, r) = sum_e w_e V_e^T K_e V_e
+    (tissue) and, for each brick e with slot[e] >= 0, ks[slot[e]] (r, r) = w_e V_e^T K^s_e
+    V_e (its unit stiffening), so that reduced_bricks' tangent is kt + sum_e s_e ks[slot[e]]
+    for any factors s. Returns the smallest det F."""
+    k, _, r = Ve.shape
+    kt[:, :] = 0.0
+    ue = np.empty((8, 3))
+    fe = np.empty(24)
+    ke = np.empty((24, 24))
+    kv = np.empty((24, r))
+    jmin = np.inf
+    for e in range(k):
+        for a in range(8):
+            for i in range(3):
+                acc = 0.0
+                for j in range(r):
+                    acc += Ve[e, 3 * a + i, j] * q[j]
+                ue[a, i] = acc
+        _, jm = _element(ue, dndX[e], wgp[e], params[e], form, True, fe, ke)
+        jmin = min(jmin, jm)
+        if jm <= 0.0:
+            return jmin
+        _project_k(Ve[e], ke, w[e], kv, kt)
+        m = slot[e]
+        if m >= 0:
+            ks[m, :, :] = 0.0
+            _element(ue, dndX[e], wgp[e], sparams[e], 1, True, fe, ke)
+            _project_k(Ve[e], ke, w[e], kv, ks[m])
+            _symmetrize(ks[m])
+    _symmetrize(kt)
+    return jmin

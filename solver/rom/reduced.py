@@ -1,5 +1,8 @@
 r"""The reduced operator: forces and tangents of a face model in reduced coordinates.
 
+This is the first implementation, kept as the reference of the fast online step
+(solver.rom.online: the same quantities, tests/test_rom_online.py) and used in training.
+
 With the basis V (3 n, r) (orthonormal on the free DOFs, zero rows on the constrained
 ones) the displacements are u = V q. Backward Euler from (q_n, v_n) with step h, the
 same scheme as the full model (solver.transient), projected (Galerkin):
@@ -9,10 +12,11 @@ same scheme as the full model (solver.transient), projected (Galerkin):
     dR/dq = M_r / h^2 + C_r / h + K_bricks + K_cables + K_contact,
 
 * inertia: M_r = V^T M V (lumped M, exact);
-* damping: C_r = alpha M_r + beta V^T K_0 V, a constant matrix: K_0 the passive tissue's
-  small-strain stiffness at rest. The full model rebuilds K_n on the current shape at
-  every substep (solver/terms/inertia.py); the ROM keeps the rest one (a difference of
-  the model, measured in the accuracy figures, not of the reduction);
+* damping: C_r = alpha M_r + beta V^T K_n V, K_n the passive tissue's small-strain
+  stiffness on the shape at the start of the substep by the cubature
+  (passive_stiffness), as the full model (solver/terms/inertia.py); or the constant rest
+  one, K_0 (damping "rest"). The stepping (solver.rom.stepper) decides when it is built;
+  the fast online step (solver.rom.online) applies it matrix-free;
 * tissue and activation stiffening: the ECSW cubature (solver.rom.ecsw) over the selected
   bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels);
 * cables (all, exactly): cable c pulls its end points x_p, x_q, with

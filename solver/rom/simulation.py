@@ -3,17 +3,18 @@ r"""`Simulation(scene, fidelity="realtime")`: the reduced model behind Simulatio
 The full-order Simulation of the scene is built as usual (coarse generic half face,
 solver.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
 outputs, and it is the fallback. Its reduced model (solver.rom.store) is looked up by the
-scene's key; where none is cached, ModelNotTrained names the training command
-(`rom_train=True` trains one on demand, with a message, in this process).
+scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
+`python build_fmu.py --rom`), then in the user cache; where there is none,
+ModelNotTrained names the training command (`rom_train=True` trains one on demand, with
+a message, in this process).
 
-Time stepping: backward Euler in reduced coordinates (solver.rom.reduced) at fixed
+Time stepping (solver.rom.stepper): backward Euler in reduced coordinates at fixed
 substeps of at most h = 1 ms, activations ramping within a caller's step as in the full
-model (hold "ramp"). Newton on the r x r system: the bricks' reduced tangent is
-refreshed at the first iteration of a substep every `refresh` substeps (and whenever the
-last substep needed more than 3 iterations); cables and contact (stiff, switching) give
-fresh tangents at every iteration. Converged when |dq| <= utol (mm; V is orthonormal so
-this is the displacement correction's Euclidean norm). A substep that does not converge
-in max_iter iterations (or inverts a brick) is split in four, twice at most.
+model (hold "ramp"); method "fast" (default): modified Newton with a frozen reduced
+tangent on the fast online operator (solver.rom.online); "reference": the first
+implementation (full tangents of cables and contact at every iteration, the generic
+contact path). Converged when |dq| <= utol (mm). A substep that does not converge in
+max_iter iterations (or inverts a brick) is split in four, twice at most.
 
 Damping: C = alpha M + beta K_n as in the full model, K_n the passive small-strain
 stiffness on the shape at the start of a substep, hyper-reduced by the cubature
@@ -22,13 +23,9 @@ stiffness on the shape at the start of a substep, hyper-reduced by the cubature
 0.3-0.6 mm off the full model on training patterns: the rest K_0 damps turned tissue
 with the bulk modulus, solver/terms/inertia.py).
 
-Trust check: every `check_every` substeps, the full-order residual of the reduced
-solution u = V q on the free DOFs, with inertia and damping (M (u - u_n - h v_n) / h^2 +
-(alpha M + beta K_n)(u - u_n) / h + f_int(u) + cables + stiffening + contact, K_n on all
-bricks at u_n, or K_0 with damping="rest"), relative to the force scale
-max(|f_tissue|, |f_cables|, 1e-3 N):
-
-    rho = |R_free(V q)| / scale.
+Trust check (solver.rom.trust): every `check_every` substeps, the full-order residual of
+the reduced solution u = V q on the free DOFs, with inertia and damping, relative to the
+force scale max(|f_tissue|, |f_cables|, 1e-3 N): rho = |R_free(V q)| / scale.
 
 rho above the model's trust threshold (calibrated in training: a multiple of the largest
 rho met on training patterns) means the state has left the span the model was trained
@@ -38,18 +35,20 @@ from the reduced state at its start, and the simulation stays full-order from th
 every split also falls back (or fails, with trust "warn"/"off").
 """
 
-import math
 import warnings
 
 import numpy as np
-import scipy.linalg as sla
 
 from ..errors import ParameterError
-from ..simulation import Simulation
-from ..system import System
+from ..fidelity import REDUCED
+from ..simulation import Simulation, resolve_scene
 from ..transient import StepStats
+from ..units import kg_per_m3
 from .reduced import ReducedOperator
+from .stepper import METHODS, Stepper
 from .store import ModelNotTrained, find_model, load_model, model_path
+from .outputs import LipOutputs
+from .trust import TrustCheck
 
 TRUST_MODES = ("fallback", "warn", "off")
 
@@ -60,21 +59,29 @@ class TrustWarning(UserWarning):
 
 class ReducedSimulation(Simulation):
     """Extra keyword arguments (besides Simulation's): rom_model (a .npz path or an
-    (arrays, meta) pair: use this model whatever the scene's key), rom_train (train on
-    demand when no model is cached), trust ('fallback' | 'warn' | 'off'), check_every
-    (substeps between trust checks), h (largest substep, s), refresh, utol, max_iter;
-    damping 'rest' (C_r constant) or 'current' (K_n by the cubature on the shape at the
-    start of a substep, rebuilt every damping_refresh substeps)."""
+    (arrays, meta) pair: use this model whatever the scene's key), rom_dirs (folders
+    searched for the scene's model before the user cache, e.g. an FMU's resources),
+    rom_train (train on demand when no model is found), trust ('fallback' | 'warn' |
+    'off'), check_every (substeps between trust checks), h (largest substep, s), utol,
+    max_iter; method 'fast' (default) or 'reference' with its own knobs (refresh; rate,
+    contact_delta, max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant)
+    or 'current' (K_n by the cubature on the shape at the start of each substep; the
+    reference method rebuilds it every damping_refresh substeps); warmup: load every
+    kernel at construction (warmup())."""
 
-    def __init__(self, scene="default", loaded_anatomy=None, fidelity="realtime",
-                 rom_model=None, rom_train=False, trust="fallback", check_every=50, h=1e-3,
-                 refresh=4, utol=1e-4, max_iter=20, damping="current", damping_refresh=5,
-                 **overrides):
+    def __init__(self, scene="default", loaded_anatomy=None, fidelity=None,
+                 rom_model=None, rom_dirs=(), rom_train=False, trust="fallback",
+                 check_every=100, h=1e-3, refresh=4, utol=1e-4, max_iter=20,
+                 damping="current", damping_refresh=5, method="fast", rate=0.8,
+                 contact_delta=0.2, max_frozen=6, kb_every=50, warmup=True, **overrides):
         if damping not in ("rest", "current"):
             raise ParameterError(f"damping = {damping!r} is not 'rest' or 'current'")
-        self.damping_mode, self.damping_refresh = damping, int(damping_refresh)
         if trust not in TRUST_MODES:
             raise ParameterError(f"trust = {trust!r} is not one of {TRUST_MODES}")
+        if method not in METHODS:
+            raise ParameterError(f"method = {method!r} is not one of {METHODS}")
+        if fidelity is None and getattr(resolve_scene(scene), "fidelity", "") not in REDUCED:
+            fidelity = "realtime"           # else a scene (file) that asks for it: its keys win
         super().__init__(scene, loaded_anatomy, fidelity=fidelity, **overrides)
         sc = self.scene
         if sc.analysis != "transient" or sc.gravity != "none" or not (sc.inertia or sc.damping):
@@ -83,7 +90,7 @@ class ReducedSimulation(Simulation):
                                  f"{sc.gravity!r}); use fidelity 'fast'")
         if rom_model is None:
             try:
-                arrays, meta = find_model(sc)
+                arrays, meta = find_model(sc, rom_dirs)
             except ModelNotTrained:
                 if not rom_train:
                     raise
@@ -97,166 +104,49 @@ class ReducedSimulation(Simulation):
             arrays, meta = load_model(rom_model)
         self.rom_meta = meta
         self.trust, self.check_every = trust, int(check_every)
-        self.h_max, self.refresh, self.utol, self.max_iter = h, refresh, utol, max_iter
+        self.h_max, self.utol, self.max_iter = h, utol, max_iter
         self.trust_threshold = float(arrays["trust_threshold"][0])
-        self._setup(arrays)
-        self.mode = "rom"
-        self.trust_history = []          # (t, rho) of every check
-
-    # -- setup ---------------------------------------------------------------------------
-    def _setup(self, arrays):
         V = arrays["V"]
-        alpha = self.scene.alpha if self.scene.damping else 0.0
-        beta = self.scene.beta if self.scene.damping else 0.0
-        m_scale = 1.0 if self.scene.inertia else 0.0
+        alpha = sc.alpha if sc.damping else 0.0
+        beta = sc.beta if sc.damping else 0.0
+        m_scale = 1.0 if sc.inertia else 0.0
         M_r = arrays["M_r"]
         self.op = ReducedOperator(self, V, arrays["bricks"], arrays["weights"],
                                   m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
+        self.stepper = Stepper(self.op, M_r, alpha, beta, damping, damping_refresh, h, utol,
+                               max_iter, method, refresh, rate, contact_delta, max_frozen,
+                               kb_every)
         r = V.shape[1]
         self.q, self.v_r = np.zeros(r), np.zeros(r)
-        self._kb = None
-        self._since_refresh = 10 ** 9
-        self._last_iters = 0
         self._substeps = 0
-        self._checker = None
-        self._alpha, self._beta = alpha, beta
-        self._m_on = m_scale
-        self._M_r = M_r
+        self.checker = None if trust == "off" else \
+            TrustCheck(self, kg_per_m3(sc.density), alpha, beta, m_scale, damping)
+        self._outputs = LipOutputs(self.face, V)
+        self.mode = "rom"
+        self.trust_history = []          # (t, rho) of every check
+        if warmup:
+            self.warmup()
 
-    def _check_setup(self):
-        """Full-order residual pieces for the trust check (built on first use)."""
-        from ..assembly import Assembly
-        from ..terms.inertia import lumped_masses, passive_tangent
-        model = self.face.model
-        terms = [t for t in model.terms if t.name not in ("inertia", "damping")]
-        sysm = System(terms, self.anatomy.mesh.n_nodes, model.system().prescribed)
-        m3 = np.repeat(lumped_masses(self.anatomy.mesh, self._density()), 3)
-        asm = Assembly(sysm.pattern, True)
-        from ..kernels.scatter import scatter_matrices
-        scatter_matrices(passive_tangent(model.elasticity), sysm.pattern.index[0], asm.data)
-        K0 = sysm.pattern.matrix(asm.data)
-        self._checker = (sysm, m3, K0, sysm.free)
-
-    def _density(self):
-        from ..units import kg_per_m3
-        return kg_per_m3(self.scene.density)
-
-    # -- reduced time stepping -----------------------------------------------------------
-    def _newton(self, q_n, v_n, h, a, t):
-        op = self.op
-        A = op.M_r / h ** 2 + op.C_r / h
-        q = q_n + h * v_n
-        b = op.M_r @ (q_n + h * v_n) / h ** 2 + op.C_r @ q_n / h
-        refresh = (self._kb is None or self._since_refresh >= self.refresh
-                   or self._last_iters > 3)
-        r_prev, dq_prev = np.inf, None
-        for it in range(1, self.max_iter + 1):
-            need_b = refresh and it == 1
-            fb, kb, jmin = op.bricks_part(q, a, need_b)
-            if not jmin > 0.0:
-                return None, it, "inverted brick"
-            if need_b:
-                self._kb, self._since_refresh = kb, 0
-            fc, kc = op.cables_part(q, a, True)
-            fk, kk = op.contact_part(q, True, t)
-            R = A @ q - b + fb + fc + fk
-            rn = float(np.linalg.norm(R))
-            if rn > r_prev and dq_prev is not None:
-                # the residual grew (a contact switching on or off): go back half the step
-                # and evaluate there (a cheap backtrack, one evaluation per halving)
-                dq_prev = 0.5 * dq_prev
-                q = q - dq_prev
-                if float(np.linalg.norm(dq_prev)) <= self.utol:
-                    self._since_refresh += 1
-                    self._last_iters = it
-                    return q, it, ""
-                continue
-            J = A + self._kb + kc + kk
-            try:
-                dq = -sla.solve(J, R, assume_a="sym", check_finite=False)
-            except (sla.LinAlgError, ValueError):
-                return None, it, "singular reduced tangent"
-            if not np.all(np.isfinite(dq)):
-                return None, it, "NaN"
-            q = q + dq
-            r_prev, dq_prev = rn, dq
-            if float(np.linalg.norm(dq)) <= self.utol:
-                self._since_refresh += 1
-                self._last_iters = it
-                return q, it, ""
-        return None, self.max_iter, f"no convergence in {self.max_iter} iterations"
-
-    def _advance_rom(self, t_end, stats):
-        """Reduced substeps from self.t to t_end; True on success (state updated)."""
-        t0, span = self.t, t_end - self.t
-        act = self.face.activation
-        n = max(1, int(math.ceil(span / self.h_max * (1.0 - 1e-9))))
-        q, v = self.q.copy(), self.v_r.copy()
-        pieces = [(k + 1) / n for k in range(n)]
-        lam_prev, depth = 0.0, {}
-        i = 0
-        while i < len(pieces):
-            lam = pieces[i]
-            h = (lam - lam_prev) * span
-            if self.damping_mode == "current" and self._beta and \
-                    (self._substeps + stats.substeps) % self.damping_refresh == 0:
-                self.op.C_r = self._alpha * self._M_r + self._beta * self.op.passive_stiffness(q)
-            q_new, its, why = self._newton(q, v, h, act.at(lam), t0 + lam * span)
-            stats.newton_iterations += its
-            if q_new is None:
-                d = depth.get(round(lam_prev, 12), 0)
-                if d >= 2:
-                    stats.reason = f"at t = {t0 + lam * span:.6g} s: {why}"
-                    return False
-                stats.cutbacks += 1
-                self._kb = None
-                sub = [lam_prev + (lam - lam_prev) * (k + 1) / 4 for k in range(4)]
-                pieces[i:i + 1] = sub
-                depth[round(lam_prev, 12)] = d + 1
-                continue
-            self._last = (q.copy(), v.copy(), h)
-            v = (q_new - q) / h
-            q = q_new
-            lam_prev = lam
-            i += 1
-            stats.substeps += 1
-            stats.h_min, stats.h_max = min(stats.h_min, h), max(stats.h_max, h)
-        self.q, self.v_r = q, v
-        self._substeps += stats.substeps
-        return True
+    def warmup(self):
+        """Run one substep from the current state and a trust check, then restore the
+        state: numba compiles (or loads from its cache) every kernel of the online step at
+        its first call, which would otherwise fall on the first steps of a run."""
+        state = self.get_state()
+        self.stepper.advance(self.q, self.v_r, self.face.activation, self.t,
+                             self.t + self.h_max, StepStats())
+        if self.checker is not None:
+            self.checker.residual(self.op.V, self.q, self.q, self.v_r, self.h_max)
+        self.set_state(state)
 
     def trust_residual(self):
-        """rho (module docstring) at the current reduced state (after a substep)."""
-        if self._checker is None:
-            self._check_setup()
-        sysm, m3, K0, free = self._checker
-        q_n, v_n, h = self._last
-        V = self.op.V
-        u, un = V @ self.q, V @ q_n
-        sysm.lam = 1.0
-        f = sysm.residual(u)
-        f_cab = np.zeros_like(f)
-        if self.face.cables is not None:
-            from ..assembly import Assembly
-            asm = Assembly(sysm.pattern, False)
-            i = sysm.terms.index(self.face.cables)
-            self.face.cables.assemble(sysm.state(u), asm, sysm._ids[i])
-            f_cab = asm.residual
-        du = (u - un) / h
-        if self.damping_mode == "current" and self._beta:
-            from ..terms.inertia import passive_tangent
-            el = self.face.model.elasticity
-            ke = passive_tangent(el, un.reshape(-1, 3))
-            dofs = (3 * el.bricks[:, :, None] + np.arange(3)).reshape(len(el.bricks), 24)
-            kdu = np.bincount(dofs.ravel(), np.einsum("eij,ej->ei", ke, du[dofs]).ravel(),
-                              minlength=len(u))
-        else:
-            kdu = K0 @ du
-        R = f + self._m_on * m3 * (u - un - h * (V @ v_n)) / h ** 2 \
-            + self._alpha * m3 * du + self._beta * kdu
-        scale = max(float(np.linalg.norm((f - f_cab)[free])),
-                    float(np.linalg.norm(f_cab[free])), 1e-3)
-        return float(np.linalg.norm(R[free])) / scale
+        """rho (solver.rom.trust) at the current reduced state (after a substep)."""
+        if self.checker is None:
+            sc = self.scene
+            self.checker = TrustCheck(self, kg_per_m3(sc.density), self.stepper.alpha,
+                                      self.stepper.beta, 1.0 if sc.inertia else 0.0,
+                                      self.stepper.damping)
+        q_n, v_n, h = self.stepper.last
+        return self.checker.residual(self.op.V, self.q, q_n, v_n, h)
 
     def _to_full(self, q, v, activation_start):
         """Hand the reduced state to the full model (from then on, mode 'full')."""
@@ -277,9 +167,12 @@ class ReducedSimulation(Simulation):
             raise ParameterError(f"step end {t_end!r} must be after the current time "
                                  f"{self.t!r}")
         act = self.face.activation
-        start = (self.q.copy(), self.v_r.copy(), act.start.copy(), self._substeps)
+        start = (self.q, self.v_r, act.start.copy(), self._substeps)
         stats = StepStats()
-        ok = self._advance_rom(t_end, stats)
+        ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats)
+        if ok:
+            self.q, self.v_r = q, v
+            self._substeps += stats.substeps
         rho = None
         if ok and self.trust != "off" and self._substeps // self.check_every \
                 > start[3] // self.check_every:
@@ -293,14 +186,13 @@ class ReducedSimulation(Simulation):
             if self.trust == "fallback":
                 warnings.warn(f"realtime model at t = {t_end:.4g} s: {what}; switching to "
                               "the full model", TrustWarning, stacklevel=2)
-                self.q, self.v_r = start[0], start[1]
+                self.q, self.v_r, self._substeps = start[0], start[1], start[3]
                 self._to_full(start[0], start[1], start[2])
                 stats = super().step(t_end)
                 stats.reason = (stats.reason + "; " if stats.reason else "") + \
                     "fell back to the full model"
                 return stats
             if not ok:
-                self.q, self.v_r = start[0], start[1]
                 act.target = act.start.copy()
                 stats.converged = False
                 self.last = stats
@@ -315,18 +207,18 @@ class ReducedSimulation(Simulation):
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
-            out = super().outputs()
-        else:
+            return super().outputs()
+        if "muscle_strains" in self.scene.record:
             u = self.op.displacement(self.q)
             out = self.face.lip_outputs(u)
-            out["contact_force"] = float(sum(getattr(t, "total_force", 0.0)
-                                             for t in self.contact))
-            out["newton_iterations"] = self.last.newton_iterations
-            out["substeps"] = self.last.substeps
-            out["cutbacks"] = self.last.cutbacks
-            if "muscle_strains" in self.scene.record:
-                for m, (lo, hi) in self.face.region_strains(u).items():
-                    out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
+            for m, (lo, hi) in self.face.region_strains(u).items():
+                out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
+        else:
+            out = self._outputs(self.q)
+        out["contact_force"] = self.stepper.contact_force
+        out["newton_iterations"] = self.last.newton_iterations
+        out["substeps"] = self.last.substeps
+        out["cutbacks"] = self.last.cutbacks
         return out
 
     @property
@@ -337,6 +229,7 @@ class ReducedSimulation(Simulation):
     def get_state(self):
         if self.mode == "full":
             return {**super().get_state(), "mode": "full"}
+        self.stepper.reset_caches()          # the next step starts afresh, as after set_state
         return {"t": self.t, "u": self.op.displacement(self.q).copy(),
                 "v": self.op.displacement(self.v_r).copy(),
                 "activation": self.face.activation.start.copy(), "h": self.h_max,
@@ -356,4 +249,4 @@ class ReducedSimulation(Simulation):
             V.T @ np.asarray(state["v"], float).ravel()
         self.face.activation.start = np.array(state["activation"], dtype=float)
         self.face.activation.target = self.face.activation.start.copy()
-        self._kb = None
+        self.stepper.reset_caches()

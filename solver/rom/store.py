@@ -62,11 +62,15 @@ def cache_dir():
     return Path(os.environ.get("FACEFMU_ROM_DIR") or user_cache_dir() / "rom")
 
 
-def model_path(scene, folder=None):
-    key = model_key(scene)
+def file_name(key):
+    """The file name of the model of a key (model_key)."""
     name = Path(key["anatomy"]).name if key["anatomy"] != "generic" else "generic"
     half = "half" if key["half"] else "full"
-    return Path(folder or cache_dir()) / f"rom-{name}-{key['level']}-{half}-{key_hash(key)}.npz"
+    return f"rom-{name}-{key['level']}-{half}-{key_hash(key)}.npz"
+
+
+def model_path(scene, folder=None):
+    return Path(folder or cache_dir()) / file_name(model_key(scene))
 
 
 def save_model(path, arrays, meta):
@@ -93,16 +97,28 @@ def load_model(path, key=None):
     return arrays, meta
 
 
-def find_model(scene, folder=None):
-    """(arrays, meta) of the cached model of scene, or ModelNotTrained naming the
-    training command."""
-    path = model_path(scene, folder)
-    if not path.is_file():
-        k = model_key(scene)
-        raise ModelNotTrained(
-            f"no trained realtime model for this scene (anatomy {k['anatomy']}, level "
-            f"{k['level']}, half {k['half']}, muscles {','.join(k['driven'])}, lip contact "
-            f"{k['lip_contact']}, teeth contact {k['teeth_contact']}) in {path.parent}; "
-            f"train it with: python benchmarks/rom_train.py --scene SCENE (the scene of "
-            f"this simulation), or pass train=True to train on demand")
-    return load_model(path, model_key(scene))
+TRAIN_COMMAND = "python benchmarks/rom_train.py --scene SCENE"
+
+
+def find_model(scene, folders=()):
+    """(arrays, meta) of the model of scene: the first of model_path(scene, folder) that
+    exists over folders (a path or a sequence of paths) and then the user cache; else
+    ModelNotTrained naming the training command."""
+    folders = [folders] if isinstance(folders, (str, Path)) else list(folders or ())
+    paths = [model_path(scene, f) for f in folders] + [model_path(scene)]
+    for path in paths:
+        if path.is_file():
+            return load_model(path, model_key(scene))
+    k = model_key(scene)
+    where = ", ".join(str(p.parent) for p in paths)
+    from ..simulation import builtin_scenes
+    name = scene.name if scene.name in builtin_scenes() else "SCENE"
+    raise ModelNotTrained(
+        f"no trained realtime model for scene {scene.name!r} (anatomy {k['anatomy']}, "
+        f"level {k['level']}, half {k['half']}, muscles {','.join(k['driven'])}, lip "
+        f"contact {k['lip_contact']}, teeth contact {k['teeth_contact']}; looked for "
+        f"{paths[-1].name} in {where}); train it with: "
+        f"{TRAIN_COMMAND.replace('SCENE', name)}"
+        + (" (SCENE: this scene's TOML file)" if name == "SCENE" else "")
+        + "; or pass rom_train=True to train on demand. An FMU carries models packed by "
+        "python build_fmu.py --rom FILE.npz (or --with-realtime for the speech scene)")

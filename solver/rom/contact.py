@@ -1,0 +1,264 @@
+r"""Reduced contact for the online step: the penalty contact terms' own kernels, called on
+the few nodes they concern, their forces projected in one numba pass.
+
+The contact terms (solver.terms.contact) assemble on full-size arrays; the reduced model
+needs only their slave (and, for lip contact, master) nodes. Per term an adapter:
+
+* RigidContact (lips and cheeks on the teeth): the term's kernel (rigid_contact, with
+  the term's arguments) on the slave positions x_s = X_s + V_s q, with short candidate
+  lists. The kernel's answer for a slave depends on the nearest triangle among its
+  candidates only, and the term's candidate lists hold every triangle within its search
+  radius (+ reach) of the slave, so that the term finds the nearest triangle of the whole
+  surface whenever it is within the search radius (the contact depth), and no contact
+  otherwise. Here, at a reference position x_ref of every slave, with d_i the distance of
+  slave i to the surface there, the list of i holds the triangles within d_i + 2 delta of
+  x_ref,i.
+  While |x_i - x_ref,i| <= delta, the nearest point of the surface to x_i (at a distance
+  <= d_i + delta) lies in a triangle of that list: the kernel finds the same nearest
+  triangle, hence the same gap and force, as the term (a slave with d_i - delta above the
+  contact depth gets an empty list: out of contact either way). The lists are rebuilt
+  (one brute-force numba pass over the triangles) when a slave has moved more than delta
+  (default 0.2 mm). Slaves are not skipped by distance: beyond a free edge the term's
+  penalty is not a function of the distance alone.
+* LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
+  (surface_contact) on the positions of the contact nodes, the master surface's normals
+  refreshed by the term's own normals object; private copies of the pair work arrays.
+* anything else: the term's assemble() on a full-size displacement filled at the
+  contact nodes only (the generic, slower path; solver.rom.reduced does the same).
+
+Each adapter adds V_b^T f_b (and V_b^T K_b V_b) of its active blocks (project_nodal) and
+reports its normal contact force (N) and its active set (for the tangent's refresh).
+tests/test_rom_online.py checks the adapters against the terms' assemble().
+"""
+
+import numpy as np
+
+from ..assembly import block_dofs
+from ..kernels.contact import rigid_contact, surface_contact, surface_normals
+from ..terms.base import State
+from .contact_kernels import (fill_positions, mirror_normals, project_pairs, project_slaves,
+                              short_lists, slave_positions)
+from .online_kernels import project_nodal
+
+
+class _Rigid:
+    def __init__(self, term, Vn, delta):
+        self.term, self.delta = term, float(delta)
+        self.slaves = np.asarray(term.slaves, dtype=np.int64)
+        s = len(self.slaves)
+        self.X = np.ascontiguousarray(term.mesh.nodes[self.slaves])
+        self.Vs = np.ascontiguousarray(Vn[self.slaves])                    # (s, 3, r)
+        xv, tris = term.vertices, term.tris
+        self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
+        self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
+                                                       axis=2).max(axis=1))
+        self.depth = float(term.search_radius)
+        # the term's kernel arguments after `tri` (e.g. its free-edge fade length)
+        self.extra = (float(term.fade),) if hasattr(term, "fade") else ()
+        self.ptr = np.zeros(s + 1, dtype=np.int64)
+        self.cand = np.zeros(s * len(tris), dtype=np.int64)
+        self.dist = np.zeros(s)
+        self.x, self.x_ref = np.zeros((s, 3)), np.zeros((0, 3))
+        self.all = np.arange(s)
+        self.xs = np.zeros((s, 3))
+        self.fe, self.ke = np.zeros((s, 3)), np.zeros((s, 3, 3))
+        self.gap, self.force = np.zeros(s), np.zeros(s)
+        self.tri = -np.ones(s, dtype=np.int64)
+        self.kv = np.zeros((3, Vn.shape[2]))
+        self._f0 = np.zeros(Vn.shape[2])
+        self.rebuilds = 0
+
+    def nodes(self):
+        return self.slaves
+
+    def reset(self):
+        self.x_ref = np.zeros((0, 3))                  # rebuild the lists at the next call
+
+    def evaluate(self, q, x, need_k, fr, kr):
+        t = self.term
+        move = slave_positions(q, self.X, self.Vs, self.x_ref, self.all, self.x, self.xs)
+        if not move <= self.delta:
+            short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta,
+                        self.depth, self.ptr, self.cand, self.dist)
+            self.x_ref = self.x.copy()
+            self.rebuilds += 1
+        # the slaves' tangents too (cheap): tangent() projects them without a new call
+        rigid_contact(self.xs, t.k, t.vertices, t.tris, self.ptr, self.cand,
+                      *t.normals.args(), t.search_radius, t.onset, True, self.fe, self.ke,
+                      self.gap, self.force, self.tri, *self.extra)
+        return project_slaves(self.Vs, self.fe, self.ke, self.gap, self.force, need_k, fr,
+                              kr, self.kv)
+
+    def tangent(self, kr):
+        """kr += the reduced tangent of the last evaluation."""
+        project_slaves(self.Vs, self.fe, self.ke, self.gap, self.force, True, self._f0,
+                       kr, self.kv)
+
+
+class _Lip:
+    def __init__(self, term, Vn):
+        self.term = term
+        self.passes = []
+        for p in term.passes:
+            nodes = np.asarray(p["nodes"], dtype=np.int64)
+            npair = len(p["pair_tri"])
+            nrm = term.normals[p["master"]]
+            self.passes.append({
+                "p": p, "nrm": nrm, "mirror": (nrm._me[0].astype(np.int64),
+                                               nrm._me[1].astype(np.int64),
+                                               np.asarray(nrm._mv, dtype=np.int64)),
+                "Vb": np.ascontiguousarray(Vn[nodes].reshape(npair, 12, -1)),
+                "fe": np.zeros((npair, 12)), "ke": np.zeros((npair, 12, 12)),
+                "active": -np.ones(len(p["slaves"]), dtype=np.int64),
+                "kept": -np.ones(len(p["slaves"]), dtype=np.int64),
+                "gap": np.zeros(len(p["slaves"])), "force": np.zeros(len(p["slaves"])),
+                # the term's kernel arguments after `kept` (its candidate-boundary flags
+                # and fade length), as its assemble() passes them
+                "extra": ((p["pair_free"], float(term.fade)) if "pair_free" in p else
+                          ((None, float(term.fade)) if hasattr(term, "fade") else ()))})
+        self.kv = np.zeros((12, Vn.shape[2]))
+        self._f0 = np.zeros(Vn.shape[2])
+
+    def nodes(self):
+        # pair nodes and every node of the master surfaces (their edge and vertex
+        # pseudo-normals involve the neighbouring triangles)
+        return np.concatenate([np.asarray(p["p"]["nodes"]).ravel() for p in self.passes]
+                              + [np.asarray(n.tris).ravel() for n in self.term.normals])
+
+    def evaluate(self, q, x, need_k, fr, kr):
+        t = self.term
+        total, sig = 0.0, 0
+        for w in self.passes:
+            p, nrm = w["p"], w["nrm"]
+            # nrm.update(x), the mirror part in numba
+            surface_normals(x, nrm.tris, nrm.topo.nbr, nrm.verts, nrm.fn, nrm.en, nrm.vn)
+            mirror_normals(nrm.en, w["mirror"][0], w["mirror"][1], nrm.vn, w["mirror"][2])
+            surface_contact(x, p["slaves"], p["k"], nrm.tris, p["ptr"], p["pair_tri"],
+                            *nrm.args(), t.depth, t.onset, True, w["fe"], w["ke"],
+                            w["gap"], w["force"], w["active"], w["kept"], *w["extra"])
+            f, h = project_pairs(w["Vb"], w["fe"], w["ke"], w["active"], w["force"], need_k,
+                                 fr, kr, self.kv)
+            total, sig = total + f, sig * 1000003 + h
+        return total, sig
+
+    def tangent(self, kr):
+        """kr += the reduced tangent of the last evaluation."""
+        for w in self.passes:
+            project_pairs(w["Vb"], w["fe"], w["ke"], w["active"], w["force"], True, self._f0,
+                          kr, self.kv)
+
+
+class _Capture:
+    """An Assembly stand-in for a term's assemble(): keeps its element blocks."""
+
+    def __init__(self, need_k):
+        self.need_k, self.energy, self.blocks = need_k, 0.0, []
+
+    def add_block(self, block, fe, ke=None, rows=None):
+        self.blocks.append((block, fe, ke, rows))
+
+
+class _Generic:
+    """Any contact term through its assemble() (full-size displacement, zero off its nodes)."""
+
+    def __init__(self, term, V):
+        self.term = term
+        self.bl = term.blocks()
+        self.Vb = [np.ascontiguousarray(V[block_dofs(b)]) for b in self.bl]
+
+    def nodes(self):
+        return np.concatenate([np.asarray(b).ravel() for b in self.bl])
+
+    def evaluate(self, q, x, need_k, fr, kr):
+        cap = _Capture(need_k)
+        u = x - self.term.mesh.nodes
+        self.term.assemble(State(u, 1.0, 0.0, {}), cap, list(range(len(self.bl))))
+        for block, fe, ke, rows in cap.blocks:
+            Vb = self.Vb[block] if rows is None else self.Vb[block][rows]
+            rows = np.arange(len(Vb))
+            if len(Vb) == 0:
+                continue
+            fe = np.ascontiguousarray(fe.reshape(len(Vb), -1))
+            ke = np.ascontiguousarray(ke) if ke is not None else \
+                np.zeros((len(Vb), fe.shape[1], fe.shape[1]))
+            Vb = np.ascontiguousarray(Vb.reshape(len(Vb), fe.shape[1], -1))
+            project_nodal(Vb, fe, ke, rows, need_k and ke is not None, fr, kr)
+        force = getattr(self.term, "force", np.zeros(0))
+        self._last = (q, x)
+        return float(getattr(self.term, "total_force", 0.0)), (np.asarray(force) > 0).tobytes()
+
+    def tangent(self, kr):
+        """kr += the reduced tangent at the last evaluation's state (a new assemble())."""
+        q, x = self._last
+        self.evaluate(q, x, True, np.zeros(kr.shape[0]), kr)
+
+
+def _adapter(term, V, Vn, delta, generic):
+    from ..terms.contact import LipContact, RigidContact
+    if not generic:
+        try:
+            if type(term) is RigidContact:
+                return _Rigid(term, Vn, delta)
+            if type(term) is LipContact:
+                return _Lip(term, Vn)
+        except (AttributeError, KeyError, TypeError):
+            pass                              # a term that changed shape: the generic path
+    return _Generic(term, V)
+
+
+class ReducedContact:
+    """The contact terms of a face, reduced. terms: contact terms (solver.terms.contact);
+    V (3 n, r) the basis; delta (mm): slave motion before the rigid candidate lists are
+    rebuilt; generic: every term through its assemble() (the reference path)."""
+
+    def __init__(self, terms, V, n_nodes, delta=0.2, generic=False):
+        self.r = V.shape[1]
+        Vn = V.reshape(n_nodes, 3, self.r)
+        self.adapters = [_adapter(t, V, Vn, delta, generic) for t in terms]
+        nodes = [a.nodes() for a in self.adapters]
+        if self.adapters and not self.fast:                    # the generic path: all
+            nodes = [np.arange(n_nodes)]
+        self.nodes = np.unique(np.concatenate(nodes)) if nodes else np.zeros(0, np.int64)
+        self.Vc = np.ascontiguousarray(Vn[self.nodes])
+        self.X = np.ascontiguousarray(terms[0].mesh.nodes) if terms else np.zeros((0, 3))
+        self.x = self.X.copy()                 # current positions at the contact nodes
+        self.fr, self.kr = np.zeros(self.r), np.zeros((self.r, self.r))
+        self.total_force, self.active = 0.0, tuple(0 for _ in self.adapters)
+
+    def reset(self):
+        """Forget the cached candidate lists (rebuilt at the next evaluation)."""
+        for a in self.adapters:
+            if hasattr(a, "reset"):
+                a.reset()
+
+    @property
+    def fast(self):
+        """True where every term has a fast adapter."""
+        return not any(isinstance(a, _Generic) for a in self.adapters)
+
+    def tangent(self, i):
+        """(r, r) the tangent of term i at the state of the last evaluate() (a new array;
+        the fast adapters keep their slaves' tangents from that evaluation)."""
+        kr = np.zeros((self.r, self.r))
+        self.adapters[i].tangent(kr)
+        return kr
+
+    def evaluate(self, q, need_k, out=None):
+        """Adds the reduced contact force at q to out (r,) (default: a work array, zeroed
+        first, returned with K_r (r, r) or None; valid to the next call). Sets total_force
+        (N) and active (a signature per term of its active slaves or pairs: equal sets,
+        equal signatures)."""
+        fr = self.fr if out is None else out
+        if out is None:
+            fr[:] = 0.0
+        if need_k:
+            self.kr[:, :] = 0.0
+        if self.adapters:
+            fill_positions(q, self.X, self.Vc, self.nodes, self.x)
+            total, active = 0.0, []
+            for a in self.adapters:
+                f, sig = a.evaluate(q, self.x, need_k, fr, self.kr)
+                total += f
+                active.append(sig)
+            self.total_force, self.active = total, tuple(active)
+        return fr, (self.kr if need_k else None)

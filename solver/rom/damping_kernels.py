@@ -1,0 +1,237 @@
+r"""Numba kernels of the damping's passive small-strain stiffness K_n on a shape.
+
+K_n = sum_e int B_n^T D0 B_n dv_n on the shape X + u (solver.terms.inertia.passive_tangent):
+with F the deformation gradient of u, dN/dx = dN/dX F^-1, dv = w det F, B_n the small-strain
+B of dN/dx, D0 the law's tangent at C = 1 (per brick, solver.rom.online.small_strain_tangents)
+and, for mean dilatation, + U''(1) / V dv dv^T with dv = sum_g w det F dN/dx.
+
+* ``damping_geometry``: dN/dx, w det F and dv of the cubature's bricks on X + V q (once per
+  substep; brick_forces_r's matrix-free damping force and passive_stiffness_r use them);
+* ``passive_stiffness_r``: the reduced matrix sum_e w_e V_e^T K_n,e V_e on that shape (the
+  damping part of the Newton tangent);
+* ``passive_apply``: the full-order product K_n du, without element matrices (the trust
+  check's residual, solver.rom.trust).
+"""
+
+import numpy as np
+from numba import njit
+
+_FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf checks stay
+
+
+@njit(cache=True, fastmath=_FM)
+def damping_geometry(q, Ve, dndX, wgp, ue, dxn, wn, dvn):
+    """The shape X + V q of the selected bricks for their damping: fills ue (k, 24) their
+    displacements V_e q, dxn (k, 8, 8, 3) dN/dx, wn (k, 8) w det F and dvn (k, 24)
+    sum_g wn dN/dx. Returns the smallest det F."""
+    k, _, r = Ve.shape
+    jmin = np.inf
+    for e in range(k):
+        for c in range(24):
+            acc = 0.0
+            for j in range(r):
+                acc += Ve[e, c, j] * q[j]
+            ue[e, c] = acc
+            dvn[e, c] = 0.0
+        for g in range(8):
+            G = dndX[e, g]
+            f00 = f11 = f22 = 1.0
+            f01 = f02 = f10 = f12 = f20 = f21 = 0.0
+            for a in range(8):
+                g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
+                u0, u1, u2 = ue[e, 3 * a], ue[e, 3 * a + 1], ue[e, 3 * a + 2]
+                f00 += u0 * g0
+                f01 += u0 * g1
+                f02 += u0 * g2
+                f10 += u1 * g0
+                f11 += u1 * g1
+                f12 += u1 * g2
+                f20 += u2 * g0
+                f21 += u2 * g1
+                f22 += u2 * g2
+            a00 = f11 * f22 - f12 * f21
+            a01 = f02 * f21 - f01 * f22
+            a02 = f01 * f12 - f02 * f11
+            a10 = f12 * f20 - f10 * f22
+            a11 = f00 * f22 - f02 * f20
+            a12 = f02 * f10 - f00 * f12
+            a20 = f10 * f21 - f11 * f20
+            a21 = f01 * f20 - f00 * f21
+            a22 = f00 * f11 - f01 * f10
+            det = f00 * a00 + f01 * a10 + f02 * a20
+            if not det > 0.0:
+                return det
+            if det < jmin:
+                jmin = det
+            inv = 1.0 / det
+            wd = wgp[e, g] * det
+            wn[e, g] = wd
+            for a in range(8):
+                g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
+                x0 = (g0 * a00 + g1 * a10 + g2 * a20) * inv
+                x1 = (g0 * a01 + g1 * a11 + g2 * a21) * inv
+                x2 = (g0 * a02 + g1 * a12 + g2 * a22) * inv
+                dxn[e, g, a, 0] = x0
+                dxn[e, g, a, 1] = x1
+                dxn[e, g, a, 2] = x2
+                dvn[e, 3 * a] += wd * x0
+                dvn[e, 3 * a + 1] += wd * x1
+                dvn[e, 3 * a + 2] += wd * x2
+    return jmin
+
+
+@njit(cache=True, fastmath=_FM)
+def passive_stiffness_r(Ve, w, dxn, wn, dvn, D0, kvol, form, kr):
+    """kr (r, r) = sum_e w_e V_e^T K_n,e V_e: the cubature's passive small-strain stiffness
+    on the shape of damping_geometry (dxn, wn, dvn), D0 (k, 6, 6), kvol (k,) (see
+    passive_apply); K_n,e = sum_g wn B^T D0 B (+ kvol / V dv dv^T for form 0), B the
+    small-strain B of dN/dx."""
+    k, _, r = Ve.shape
+    kr[:, :] = 0.0
+    ke = np.empty((24, 24))
+    B = np.zeros((6, 24))
+    DB = np.empty((6, 24))
+    kv = np.empty((24, r))
+    for e in range(k):
+        ke[:, :] = 0.0
+        vol = 0.0
+        for g in range(8):
+            G = dxn[e, g]
+            for a in range(8):
+                c = 3 * a
+                B[0, c] = G[a, 0]
+                B[1, c + 1] = G[a, 1]
+                B[2, c + 2] = G[a, 2]
+                B[3, c] = G[a, 1]
+                B[3, c + 1] = G[a, 0]
+                B[4, c + 1] = G[a, 2]
+                B[4, c + 2] = G[a, 1]
+                B[5, c] = G[a, 2]
+                B[5, c + 2] = G[a, 0]
+            wg = wn[e, g]
+            for p in range(6):
+                for c in range(24):
+                    acc = 0.0
+                    for t in range(6):
+                        acc += D0[e, p, t] * B[t, c]
+                    DB[p, c] = wg * acc
+            for c1 in range(24):
+                for c2 in range(c1, 24):
+                    acc = 0.0
+                    for p in range(6):
+                        acc += B[p, c1] * DB[p, c2]
+                    ke[c1, c2] += acc
+            vol += wg
+        if form == 0:
+            f = kvol[e] / vol
+            for c1 in range(24):
+                for c2 in range(c1, 24):
+                    ke[c1, c2] += f * dvn[e, c1] * dvn[e, c2]
+        for c1 in range(24):
+            for c2 in range(c1 + 1, 24):
+                ke[c2, c1] = ke[c1, c2]
+        for c in range(24):
+            for j in range(r):
+                kv[c, j] = 0.0
+            for d in range(24):
+                x = ke[c, d]
+                for j in range(r):
+                    kv[c, j] += x * Ve[e, d, j]
+        we = w[e]
+        for c in range(24):
+            for i in range(r):
+                x = we * Ve[e, c, i]
+                for j in range(i, r):
+                    kr[i, j] += x * kv[c, j]
+    for i in range(r):
+        for j in range(i + 1, r):
+            kr[j, i] = kr[i, j]
+
+
+@njit(cache=True, fastmath=_FM)
+def passive_apply(u, du, bricks, dndX, wgp, D0, kvol, form, out):
+    """out (n, 3) += K_n du (module docstring): u, du (n, 3), bricks (m, 8), dndX (m, 8, 8,
+    3), wgp (m, 8), D0 (m, 6, 6) Voigt (11, 22, 33, 12, 23, 13), kvol (m,) U''(1) (used for
+    form 0). Returns the smallest det F."""
+    m = bricks.shape[0]
+    F = np.empty((3, 3))
+    Fi = np.empty((3, 3))
+    dx = np.empty((8, 3))
+    due = np.empty((8, 3))
+    dv = np.empty((8, 3))
+    fe = np.empty((8, 3))
+    eps = np.empty(6)
+    sig = np.empty(6)
+    jmin = np.inf
+    for e in range(m):
+        for a in range(8):
+            for i in range(3):
+                due[a, i] = du[bricks[e, a], i]
+                fe[a, i] = 0.0
+                dv[a, i] = 0.0
+        vol = 0.0
+        for g in range(8):
+            G = dndX[e, g]
+            for i in range(3):
+                for J in range(3):
+                    acc = 1.0 if i == J else 0.0
+                    for a in range(8):
+                        acc += u[bricks[e, a], i] * G[a, J]
+                    F[i, J] = acc
+            det = (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
+                   - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+                   + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+            if not det > 0.0:
+                return det                             # <= 0 or NaN
+            if det < jmin:
+                jmin = det
+            inv = 1.0 / det
+            Fi[0, 0] = (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) * inv
+            Fi[0, 1] = (F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]) * inv
+            Fi[0, 2] = (F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]) * inv
+            Fi[1, 0] = (F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]) * inv
+            Fi[1, 1] = (F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]) * inv
+            Fi[1, 2] = (F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]) * inv
+            Fi[2, 0] = (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]) * inv
+            Fi[2, 1] = (F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]) * inv
+            Fi[2, 2] = (F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]) * inv
+            wn = wgp[e, g] * det
+            for a in range(8):
+                for j in range(3):
+                    dx[a, j] = G[a, 0] * Fi[0, j] + G[a, 1] * Fi[1, j] + G[a, 2] * Fi[2, j]
+            # engineering strain of du on the current shape (B's Voigt order)
+            for p in range(6):
+                eps[p] = 0.0
+            for a in range(8):
+                eps[0] += dx[a, 0] * due[a, 0]
+                eps[1] += dx[a, 1] * due[a, 1]
+                eps[2] += dx[a, 2] * due[a, 2]
+                eps[3] += dx[a, 1] * due[a, 0] + dx[a, 0] * due[a, 1]
+                eps[4] += dx[a, 2] * due[a, 1] + dx[a, 1] * due[a, 2]
+                eps[5] += dx[a, 2] * due[a, 0] + dx[a, 0] * due[a, 2]
+            for p in range(6):
+                acc = 0.0
+                for t in range(6):
+                    acc += D0[e, p, t] * eps[t]
+                sig[p] = wn * acc
+            for a in range(8):
+                fe[a, 0] += dx[a, 0] * sig[0] + dx[a, 1] * sig[3] + dx[a, 2] * sig[5]
+                fe[a, 1] += dx[a, 1] * sig[1] + dx[a, 0] * sig[3] + dx[a, 2] * sig[4]
+                fe[a, 2] += dx[a, 2] * sig[2] + dx[a, 1] * sig[4] + dx[a, 0] * sig[5]
+                if form == 0:
+                    for j in range(3):
+                        dv[a, j] += wn * dx[a, j]
+            vol += wn
+        if form == 0:
+            acc = 0.0
+            for a in range(8):
+                for j in range(3):
+                    acc += dv[a, j] * due[a, j]
+            acc *= kvol[e] / vol
+            for a in range(8):
+                for j in range(3):
+                    fe[a, j] += acc * dv[a, j]
+        for a in range(8):
+            for j in range(3):
+                out[bricks[e, a], j] += fe[a, j]
+    return jmin

@@ -1,0 +1,306 @@
+r"""Reduced time stepping: backward Euler in q at substeps of at most h_max.
+
+    R(q) = M_r (q - q_n - h v_n) / h^2 + C_r (q - q_n) / h + f(q, a) = 0
+
+(solver.rom.reduced's docstring), activations ramping within a caller's step as in the
+full model (hold "ramp"). A substep that does not converge in max_iter iterations (or
+inverts a brick) is split in four, twice at most.
+
+Damping C_r = alpha M_r + beta V^T K_n V, K_n the passive small-strain stiffness on the
+shape at the start of the substep by the cubature (damping "current"), or the constant
+rest one (damping "rest").
+
+Two Newton methods, for the same equations:
+
+* "fast" (default): modified Newton on solver.rom.online.OnlineOperator.
+  - The damping force beta V^T K_n V (q - q_n) / h is evaluated matrix-free at every
+    iteration, K_n on the shape at q_n of this substep: exact, as the full model, which
+    rebuilds K_n every substep (solver/terms/inertia.py).
+  - The tangent J = M_r / h^2 + alpha M_r / h + (beta / h) Kn + K_bricks + K_switch is
+    kept, inverted, across iterations and substeps: Kn and K_bricks from some earlier
+    shape (K_bricks split so that it follows the activations exactly:
+    solver.rom.online.brick_tangent), K_switch (cables, each contact term) rebuilt for a
+    part whenever its set of taut cables or active slaves differs from the one it was
+    built on. When an iteration converges slowly (|dq_k| > rate |dq_k-1|, or max_frozen
+    iterations), the tangents are refreshed: first the switching parts, then Kn (and
+    K_bricks when older than kb_every substeps); a residual that grows tenfold also
+    halves the step back. J changes the path of the iteration, not its root.
+  - Predictor: q_n + h v_n + h^2 a_n (the last substep's acceleration).
+  - Converged when |dq| <= utol and theta / (1 - theta) |dq| <= utol, theta the observed
+    contraction |dq_k| / |dq_k-1| (the last substep's at the first iteration): the error
+    left by a linearly converging iteration, so that a frozen tangent stops as close to
+    the root as full Newton stopping at |dq| <= utol (tests compare the two).
+* "reference": solver.rom.reduced.ReducedOperator, the bricks' tangent refreshed every
+  `refresh` substeps, cables and contact tangents at every iteration, C_r rebuilt every
+  `damping_refresh` substeps (the first implementation: the accuracy figures of the first
+  version of docs/realtime.md), converged when |dq| <= utol.
+
+utol in mm: V is orthonormal, so |dq| is the Euclidean norm of the displacement
+correction over all DOFs.
+
+The caches (tangents, predictor, contact candidate lists) change the path, not the root;
+for exact rollbacks, reset_caches() (called by the simulation's get_state and set_state)
+makes the next step start from fresh caches, so that a step repeated from a restored
+state gives the same answer bit for bit.
+"""
+
+import math
+
+import numpy as np
+import scipy.linalg as sla
+
+from .online import OnlineOperator
+
+METHODS = ("fast", "reference")
+
+
+class Stepper:
+    """op: solver.rom.reduced.ReducedOperator (its M_r: the inertia, zero without it, and
+    its C_r: the damping, updated here); M_r (r, r) the reduced mass (for alpha M_r);
+    alpha, beta: damping constants (0 without damping); damping: 'rest' | 'current'."""
+
+    def __init__(self, op, M_r, alpha, beta, damping="current", damping_refresh=5,
+                 h_max=1e-3, utol=1e-4, max_iter=20, method="fast", refresh=4, rate=0.8,
+                 contact_delta=0.2, max_frozen=6, kb_every=50):
+        self.op, self.M_r, self.alpha, self.beta = op, op.M_r, alpha, beta
+        self.M_damp = M_r
+        self.damping, self.damping_refresh = damping, int(damping_refresh)
+        self.h_max, self.utol, self.max_iter = h_max, utol, max_iter
+        self.method, self.refresh, self.rate = method, refresh, rate
+        self.max_frozen, self.kb_every = max_frozen, kb_every
+        self.grow = 10.0                        # residual growth that triggers a backtrack
+        self.online = OnlineOperator(op, contact_delta) if method == "fast" else None
+        self._current = method == "fast" and damping == "current" and bool(beta)
+        self.C_r = op.C_r
+        self.last = None                        # (q_n, v_n, h) of the last substep
+        self.stats = {"brick_tangents": 0, "switch_tangents": 0, "inversions": 0,
+                      "damping_builds": 0, "backtracks": 0, "slow": 0}
+        self.reset_caches()
+
+    def reset_caches(self):
+        self._damping_age = 10 ** 9             # rebuild C_r at the next substep
+        self._kb = None                         # reference method's bricks tangent
+        self._since_refresh, self._last_iters = 10 ** 9, 0
+        self._Kb = self._Ks = self._Kn = self._Jinv = self._a_kb = None
+        self._Kparts = [None] * (self.online.parts if self.online is not None else 0)
+        self._sets, self._A_key, self._bd = None, None, 0.0
+        self._theta = 0.5
+        self._a_prev = None
+        self._kb_age = 0
+        if self.online is not None:
+            self.online.a = None
+            self.online.contact.reset()
+
+    @property
+    def contact_force(self):
+        if self.online is not None:
+            return self.online.contact_force
+        return float(sum(getattr(t, "total_force", 0.0) for t in self.op.contact))
+
+    # -- damping --------------------------------------------------------------------------
+    def _damping(self, q):
+        """The reference method's damping matrix C_r, rebuilt every damping_refresh."""
+        if self.method == "fast" or self.damping != "current" or not self.beta:
+            return
+        if self._damping_age >= self.damping_refresh:
+            self.C_r = self.alpha * self.M_damp + self.beta * self.op.passive_stiffness(q)
+            self.op.C_r = self.C_r
+            self._damping_age = 0
+            self.stats["damping_builds"] += 1
+        self._damping_age += 1
+
+    # -- substeps -------------------------------------------------------------------------
+    def advance(self, q, v, act, t0, t_end, stats):
+        """Substeps from (q, v) at t0 to t_end (activations act: solver.activation, ramping
+        over the step); (ok, q, v). stats: a StepStats to fill."""
+        span = t_end - t0
+        n = max(1, int(math.ceil(span / self.h_max * (1.0 - 1e-9))))
+        pieces = [(k + 1) / n for k in range(n)]
+        lam_prev, depth = 0.0, {}
+        newton = self._newton_fast if self.method == "fast" else self._newton_reference
+        i = 0
+        while i < len(pieces):
+            lam = pieces[i]
+            h = (lam - lam_prev) * span
+            self._damping(q)
+            q_new, its, why = newton(q, v, h, act.at(lam), t0 + lam * span)
+            stats.newton_iterations += its
+            if q_new is None:
+                d = depth.get(round(lam_prev, 12), 0)
+                self._kb = self._Kb = None
+                if d >= 2:
+                    stats.reason = f"at t = {t0 + lam * span:.6g} s: {why}"
+                    return False, q, v
+                stats.cutbacks += 1
+                pieces[i:i + 1] = [lam_prev + (lam - lam_prev) * (k + 1) / 4 for k in range(4)]
+                depth[round(lam_prev, 12)] = d + 1
+                continue
+            self.last = (q, v, h)
+            self._kb_age += 1
+            v_new = (q_new - q) / h
+            self._a_prev = (v_new - v) / h
+            v = v_new
+            q = q_new
+            lam_prev = lam
+            i += 1
+            stats.substeps += 1
+            stats.h_min, stats.h_max = min(stats.h_min, h), max(stats.h_max, h)
+        return True, q, v
+
+    # -- modified Newton ------------------------------------------------------------------
+    def _invert(self):
+        J = self._A + self._Kb + self._Ks
+        if self._Kn is not None:
+            J = J + self._bd * self._Kn
+        try:
+            Jinv = np.linalg.inv(J)
+        except np.linalg.LinAlgError:
+            return False
+        self._Jinv = Jinv
+        self.stats["inversions"] += 1
+        return bool(np.all(np.isfinite(Jinv)))
+
+    def _fresh_switching(self, q, parts=None):
+        """Rebuild the tangents of the switching parts (all, or the list parts) at q."""
+        on = self.online
+        if parts is None:
+            parts = range(on.parts)
+        for i in parts:
+            self._Kparts[i] = on.switching_tangent(q, i)
+            self.stats["switch_tangents"] += 1
+        self._Ks = sum(self._Kparts)
+        self._sets = on.active_sets()
+        self._Jinv = None
+
+    def _fresh_bricks(self, q, q_n):
+        """Rebuild the damping's tangent (Kn on the shape at q_n) and, when older than
+        kb_every substeps, the bricks'; False if a brick inverts."""
+        if self._Kb is None or self._kb_age >= self.kb_every:
+            if not self.online.brick_tangent(q):
+                return False
+            self._Kb = self.online.stiffened_tangent()
+            self._a_kb = self.online.a
+            self._kb_age = 0
+            self.stats["brick_tangents"] += 1
+        if self._current:
+            self._Kn = self.online.damping_tangent()       # on the shape at q_n
+            self.stats["damping_builds"] += 1
+        self._Jinv = None
+        return True
+
+    def _newton_fast(self, q_n, v_n, h, a, t):
+        on, M = self.online, self.M_r
+        on.set_activation(a)
+        if self._Kb is not None and on.a is not self._a_kb:
+            # the activations moved: the bricks' tangent follows them (same shape)
+            self._Kb, self._a_kb, self._Jinv = on.stiffened_tangent(), on.a, None
+        if self._current:
+            # the damping force beta K_n (q - q_n) / h, K_n on the shape at q_n (exact,
+            # matrix-free); alpha M (q - q_n) / h below
+            if not on.prepare_damping(q_n, self.beta / h) > 0.0:
+                return None, 0, "inverted brick"
+            C = self.alpha * self.M_damp
+        else:
+            C = self.C_r
+        if self._A_key != h:
+            self._A = M / (h * h) + C / h
+            self._A_key, self._bd, self._Jinv = h, self.beta / h, None
+        A = self._A
+        q = q_n + h * v_n
+        b = M @ q / (h * h) + C @ q_n / h
+        if self._a_prev is not None:          # predictor: the last substep's acceleration
+            q = q + (h * h) * self._a_prev
+        r_prev, dq, dn_prev = np.inf, None, None
+        # refresh: 0 none, 1 the switching parts, 2 also the bricks and the damping
+        refresh = 2 if self._Kb is None else 0
+        escalated = 0                         # the level of the last refresh this substep
+        for it in range(1, self.max_iter + 1):
+            f, jmin = on.forces(q)
+            if not jmin > 0.0:
+                return None, it, "inverted brick"
+            R = A @ q - b + f
+            rn = math.sqrt(float(R @ R))
+            if not math.isfinite(rn):
+                return None, it, "NaN"
+            if dq is not None and rn > self.grow * r_prev:
+                # the residual grew tenfold (a contact switching on or off): go back half
+                # the step, evaluate there, with fresher tangents
+                dq *= 0.5
+                q = q - dq
+                refresh = min(escalated + 1, 2)
+                self.stats["backtracks"] += 1
+                continue
+            if refresh == 2:
+                if not self._fresh_bricks(q, q_n):
+                    return None, it, "inverted brick"
+            if refresh:
+                self._fresh_switching(q)
+                escalated, refresh = max(escalated, refresh), 0
+            else:
+                # a cable going slack or a contact opening or closing: that part's tangent
+                sets = on.active_sets()
+                changed = [i for i, (x, y) in enumerate(zip(sets, self._sets)) if x != y]
+                if changed:
+                    self._fresh_switching(q, changed)
+            if self._Jinv is None and not self._invert():
+                return None, it, "singular reduced tangent"
+            dq = -(self._Jinv @ R)
+            q = q + dq
+            dn = math.sqrt(float(dq @ dq))
+            if not math.isfinite(dn):
+                return None, it, "NaN"
+            # linear convergence at the rate theta: the error left after this correction
+            # is about theta / (1 - theta) |dq| (theta of this substep, or the last one's)
+            theta = dn / dn_prev if dn_prev else self._theta
+            if dn <= self.utol and theta < 1.0 and theta * dn <= (1.0 - theta) * self.utol:
+                if dn_prev:
+                    self._theta = min(max(theta, 0.05), 0.9)
+                return q, it, ""
+            if (dn_prev is not None and dn > self.rate * dn_prev) or it >= self.max_frozen:
+                refresh = min(escalated + 1, 2)   # slow: fresher tangents next iteration
+                self.stats["slow"] += 1
+            r_prev, dn_prev = rn, dn
+        return None, self.max_iter, f"no convergence in {self.max_iter} iterations"
+
+    # -- reference Newton (the first implementation) --------------------------------------
+    def _newton_reference(self, q_n, v_n, h, a, t):
+        op = self.op
+        A = self.M_r / h ** 2 + self.C_r / h
+        q = q_n + h * v_n
+        b = self.M_r @ (q_n + h * v_n) / h ** 2 + self.C_r @ q_n / h
+        refresh = (self._kb is None or self._since_refresh >= self.refresh
+                   or self._last_iters > 3)
+        r_prev, dq_prev = np.inf, None
+        for it in range(1, self.max_iter + 1):
+            need_b = refresh and it == 1
+            fb, kb, jmin = op.bricks_part(q, a, need_b)
+            if not jmin > 0.0:
+                return None, it, "inverted brick"
+            if need_b:
+                self._kb, self._since_refresh = kb, 0
+            fc, kc = op.cables_part(q, a, True)
+            fk, kk = op.contact_part(q, True, t)
+            R = A @ q - b + fb + fc + fk
+            rn = float(np.linalg.norm(R))
+            if rn > r_prev and dq_prev is not None:
+                dq_prev = 0.5 * dq_prev
+                q = q - dq_prev
+                if float(np.linalg.norm(dq_prev)) <= self.utol:
+                    self._since_refresh += 1
+                    self._last_iters = it
+                    return q, it, ""
+                continue
+            J = A + self._kb + kc + kk
+            try:
+                dq = -sla.solve(J, R, assume_a="sym", check_finite=False)
+            except (sla.LinAlgError, ValueError):
+                return None, it, "singular reduced tangent"
+            if not np.all(np.isfinite(dq)):
+                return None, it, "NaN"
+            q = q + dq
+            r_prev, dq_prev = rn, dq
+            if float(np.linalg.norm(dq)) <= self.utol:
+                self._since_refresh += 1
+                self._last_iters = it
+                return q, it, ""
+        return None, self.max_iter, f"no convergence in {self.max_iter} iterations"

@@ -1,0 +1,151 @@
+"""The fast online step of the realtime model (solver.rom.online, .stepper, .contact,
+.trust, .outputs) against the first implementation (solver.rom.reduced and the full
+model's own terms), on the session's tiny trained model (conftest.py `trained`).
+
+Every shortcut must leave the reduced solution where the reference puts it: the kernels
+give the same forces and tangents, the reduced contact the same as the terms' assemble(),
+the frozen-tangent Newton the same trajectory as full Newton (to its tolerance), the trust
+check the same residual, the outputs the same numbers, and a rolled-back step repeats.
+"""
+
+import numpy as np
+import pytest
+
+from solver.simulation import Simulation
+
+
+def _rom(trained, **kw):
+    return Simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                      loaded_anatomy=trained["full"].anatomy, **kw)
+
+
+def _drive(sim, task, duration=None, step=1e-3, each=None):
+    from solver.rom.train import drive
+    return drive(sim, task["schedules"], duration or task["duration"], step, each)
+
+
+@pytest.fixture(scope="module")
+def states(trained):
+    """(q, activations) along the first training pattern, reduced (reference method)."""
+    rom = _rom(trained, method="reference", damping_refresh=1, trust="off")
+    out = []
+    _drive(rom, trained["tasks"][0], each=lambda s: out.append(
+        (s.q.copy(), s.face.activation.start.copy())))
+    return rom, out
+
+
+def test_fast_kernels_give_the_reference_operators_forces_and_tangents(trained, states):
+    rom, seq = states
+    op = rom.op
+    fast = _rom(trained, trust="off").stepper.online
+    for q, a in seq[len(seq) // 4::3]:     # deformed: no cable within rounding of slack
+        fast.set_activation(a)
+        fast.prepare_damping(q, 0.0)
+        f, jmin = fast.forces(q)
+        f = f.copy()                                       # a work array
+        f_ref, _, j_ref = op.forces(q, a, False)
+        assert jmin == pytest.approx(j_ref, rel=1e-12)
+        assert np.abs(f - f_ref).max() <= 1e-9 * max(np.abs(f_ref).max(), 1e-6)
+        assert fast.brick_tangent(q)
+        K_ref = op.bricks_part(q, a, True)[1]
+        assert np.abs(fast.stiffened_tangent() - K_ref).max() <= 1e-9 * np.abs(K_ref).max()
+        # the cables' (the contact's: next test, against the terms themselves; the first
+        # implementation left out slaves touching with zero force)
+        K_ref = op.cables_part(q, a, True)[1]
+        K_c = fast.switching_tangent(q, 0)
+        assert np.abs(K_c - K_ref).max() <= 1e-9 * max(np.abs(K_ref).max(), 1e-6)
+        # the damping: matrix-free force and matrix on the shape at q_n
+        q_n = 0.9 * q
+        fast.prepare_damping(q_n, 30.0)
+        Kn = op.passive_stiffness(q_n)
+        assert np.abs(fast.damping_tangent() - Kn).max() <= 1e-9 * np.abs(Kn).max()
+        f_damped = fast.forces(q)[0].copy()
+        df = 30.0 * Kn @ (q - q_n)
+        assert np.abs(f_damped - f - df).max() <= 1e-9 * max(np.abs(df).max(), 1e-6)
+
+
+def test_reduced_contact_gives_the_terms_forces_along_a_gesture(trained, states):
+    from solver.rom.contact import ReducedContact
+    rom, seq = states
+    V, n = rom.op.V, rom.anatomy.mesh.n_nodes
+    fast = ReducedContact(rom.op.contact, V, n)
+    generic = ReducedContact(rom.op.contact, V, n, generic=True)
+    assert fast.fast and not generic.fast
+    worst = 0.0
+    for q, _ in seq:
+        for need_k in (False, True):
+            f1, K1 = (x.copy() if x is not None else None for x in fast.evaluate(q, need_k))
+            f2, K2 = generic.evaluate(q, need_k)
+            scale = max(np.abs(f2).max(), 1e-9)
+            assert np.abs(f1 - f2).max() <= 1e-9 * scale
+            if need_k:
+                assert np.abs(K1 - K2).max() <= 1e-9 * max(np.abs(K2).max(), 1e-9)
+            worst = max(worst, scale)
+            assert fast.total_force == pytest.approx(generic.total_force, rel=1e-9, abs=1e-12)
+    assert worst > 1e-3                                    # the gesture touches
+
+
+def test_fast_method_follows_the_reference_method(trained):
+    task = trained["tasks"][0]
+    ref = _rom(trained, method="reference", damping_refresh=1, trust="off")
+    fast = _rom(trained, trust="off")
+    a, b = _drive(ref, task), _drive(fast, task)
+    for key in ("lip_aperture", "lip_protrusion"):
+        assert max(abs(x[key] - y[key]) for x, y in zip(a, b)) < 5e-4, key
+    assert np.abs(ref.u - fast.u).max() < 5e-4
+    assert fast.last.converged and fast.mode == "rom"
+
+
+def test_trust_check_gives_the_full_models_residual(trained, states):
+    from solver.terms.inertia import passive_tangent
+    rom, seq = states
+    chk = _rom(trained).checker
+    q, _ = seq[-1]
+    u, un = rom.op.V @ q, rom.op.V @ (0.8 * q)
+    chk.sysm_all.lam = 1.0
+    f_ref = chk.sysm_all.residual(u)
+    assert np.abs(chk.internal_forces(u) - f_ref).max() <= 1e-10 * np.abs(f_ref).max()
+    el = rom.face.model.elasticity
+    ke = passive_tangent(el, un.reshape(-1, 3))
+    dofs = (3 * el.bricks[:, :, None] + np.arange(3)).reshape(len(el.bricks), 24)
+    du = u - un
+    kdu = np.bincount(dofs.ravel(), np.einsum("eij,ej->ei", ke, du[dofs]).ravel(),
+                      minlength=len(u))
+    assert np.abs(chk.passive_apply(un, du) - kdu).max() <= 1e-10 * np.abs(kdu).max()
+
+
+def test_lip_outputs_of_the_reduced_state_are_the_face_models(trained, states):
+    rom, seq = states
+    for q, _ in seq[::5]:
+        a = rom._outputs(q)
+        b = rom.face.lip_outputs(rom.op.displacement(q))
+        assert a.keys() == b.keys()
+        assert all(a[k] == pytest.approx(b[k], abs=1e-12) for k in b)
+
+
+def test_a_rolled_back_step_repeats_exactly(trained):
+    rom = _rom(trained)
+    rom.set_activations({"OOP": 0.8, "RIS": 0.4})
+    for k in range(1, 4):
+        rom.step(0.002 * k)
+    state = rom.get_state()
+
+    def three_steps():
+        out = []
+        for _ in range(3):
+            assert rom.step(rom.t + 0.002).converged
+            out.append(rom.outputs())
+        return out
+    first = three_steps()
+    rom.set_state(state)
+    assert three_steps() == first
+
+
+def test_short_lists_distance_is_the_contact_kernels(rng):
+    from solver.kernels.contact import nearest
+    from solver.rom.contact_kernels import _triangle_d2
+    xv, tris = rng.normal(size=(3, 3)), np.array([[0, 1, 2]])
+    w, wt = np.empty(3), np.empty(3)
+    for p in rng.normal(size=(2000, 3)) * 2:
+        d2 = nearest(p, xv, tris, np.array([0]), w, wt)[2]
+        assert _triangle_d2(p, xv, 0, 1, 2) == pytest.approx(d2, rel=1e-10, abs=1e-13)
