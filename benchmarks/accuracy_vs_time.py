@@ -23,10 +23,12 @@ Runs (each an independent task of benchmarks.sweep; the default sweep):
   DEFAULT tolerances shows on the coarser levels, where TIGHT, DEFAULT and LOOSE runs
   differ (and on the reference face against its TIGHT run).
 * coarse, medium and paper with their own rows (one per layer, the paper's) at DEFAULT
-  and LOOSE tolerances, coarse and medium also at TIGHT: what the thickness resolution
-  and the tolerances cost in error;
-* full face, formulation "full" and stiffening off on the coarse half face, formulation
-  "full" on the medium one;
+  and LOOSE tolerances, medium also at TIGHT: what the thickness resolution and the
+  tolerances cost in error;
+* the full face on the medium level; formulation "full" on the coarse and the medium
+  half face; stiffening off on the coarse one. (The coarse level is slow for its size on
+  this gesture: its lips chatter on the teeth's edge, see solver/terms/contact.py; its
+  full-face and TIGHT runs were left out to keep the sweep within 30 minutes.)
 * the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
 * the reference (ANSYS) face at its own resolution (../shared/data/reference-face or
@@ -133,9 +135,10 @@ def sweep_specs(quick=False, reference_face=None):
         runs += [spec(f"{lv} {STUDY_ROWS} rows", ref, level=lv, rows=STUDY_ROWS)
                  for lv in levels[:-1]]
         runs += [spec(lv, ref, level=lv) for lv in levels[:-1]]
-        runs += [spec(f"{lv} tight", ref, level=lv, **TIGHT) for lv in levels[:2]]
+        runs += [spec("medium tight", ref, level="medium", **TIGHT)]
     runs += [spec(f"{lv} loose", ref, level=lv, **LOOSE) for lv in levels[:3]]
-    runs += [spec("coarse full face", ref, level="coarse", half=False),
+    whole = "coarse" if quick else "medium"       # half against full face
+    runs += [spec(f"{whole} full face", ref, level=whole, half=False),
              spec("coarse formulation full", ref, level="coarse", formulation="full"),
              spec("coarse no stiffening", ref, level="coarse", stiffening=False)]
     if not quick:
