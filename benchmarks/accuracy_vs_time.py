@@ -245,6 +245,8 @@ def mark_presets(table):
     """Set row["preset"] on the generic-face rows whose knobs are a fidelity preset's."""
     from solver.fidelity import FIDELITIES, PRESETS
 
+    for r in table:                   # the presets of now (a --replot of an older table)
+        r["preset"] = ""
     for name in FIDELITIES:
         knobs = with_rows({**DEFAULT, **PRESETS[name]})
         for r in table:

@@ -16,20 +16,22 @@ meet, the most specific wins: keyword overrides of Simulation (and the command l
 --level, --full) over the preset given to Simulation, that preset over the scene file,
 and in a scene file its own keys over its [scene] fidelity.
 
-The presets were picked from the Pareto front (largest error over time in lip aperture
-and protrusion against CPU time) of an earlier sweep over 0.05 s; the default sweep of
-`python benchmarks/accuracy_vs_time.py` (a 0.1 s lip gesture with contact, against the
-fine half face at DEFAULT tolerances; docs/accuracy.md) now measures them as:
+The presets are picked from the Pareto front (largest error over time in lip aperture and
+protrusion against CPU time) of the default sweep of `python benchmarks/accuracy_vs_time.py
+--cost cpu` (a 0.1 s lip gesture with contact, against the fine half face at DEFAULT
+tolerances; docs/accuracy.md):
 
-    preset    mesh, DOF            error aperture / protrusion   real-time factor (CPU)
-    fast      coarse half, 3108    1.13 / 0.39 mm                1517
-    balanced  medium half, 6300    0.19 / 0.06 mm                241
-    accurate  fine half, 50925     the reference                 6972
+    preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
+    fast      medium half, 6300           0.19 / 0.06 mm                239
+    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                1334
+    accurate  fine half (2 rows), 50925   the reference                 7642
 
-On that gesture the coarse level is slower and less accurate than medium, so `fast` is
-off the front (not yet explained); the half face gives the full face's lip outputs,
-loose tolerances cost little accuracy against the mesh error, and mean dilatation is
-needed ("full" locks).
+Through-thickness rows buy more than in-plane levels (one row per layer stalls near
+0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
+full face's lip outputs; mean dilatation is needed ("full" locks). The coarse level is off
+the front on that gesture (its lips chatter on the free edge of the teeth sheets). On an
+ANSYS face a preset sets the tolerances and half face only (rows and level are the
+generic face's).
 """
 
 from .errors import ParameterError
@@ -38,9 +40,11 @@ LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
 DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6)
 
 PRESETS = {
-    "fast": dict(level="coarse", half=True, formulation="mean_dilatation", **LOOSE),
-    "balanced": dict(level="medium", half=True, formulation="mean_dilatation", **LOOSE),
-    "accurate": dict(level="fine", half=True, formulation="mean_dilatation", **DEFAULTS),
+    "fast": dict(level="medium", rows=1, half=True, formulation="mean_dilatation", **LOOSE),
+    "balanced": dict(level="medium", rows=2, half=True, formulation="mean_dilatation",
+                     **DEFAULTS),
+    "accurate": dict(level="fine", rows=2, half=True, formulation="mean_dilatation",
+                     **DEFAULTS),
 }
 FIDELITIES = tuple(PRESETS)
 
@@ -53,18 +57,22 @@ REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatat
                             **LOOSE)}
 
 
-def fidelity_overrides(name):
-    """The Scene fields of the preset `name` (a new dict); ParameterError if unknown."""
+def fidelity_overrides(name, anatomy="generic"):
+    """The Scene fields of the preset `name` (a new dict) for the anatomy source `anatomy`
+    (an ANSYS face keeps its own mesh: no level or rows); ParameterError if unknown."""
     if name in REDUCED:
         return dict(REDUCED[name])
     if name not in PRESETS:
         raise ParameterError(f"fidelity {name!r} is not one of "
                              f"{', '.join(FIDELITIES + tuple(REDUCED))}")
-    return dict(PRESETS[name])
+    out = dict(PRESETS[name])
+    if anatomy != "generic":
+        out.pop("rows")
+    return out
 
 
 def apply_fidelity(scene, name):
     """A new Scene: `scene` (solver.scene.Scene) with the preset `name`'s fields (its
     `fidelity` field, which makes Simulation build the reduced model for "realtime", is
     left as it was: the full-order model at the realtime knobs is this scene)."""
-    return scene.with_overrides(**fidelity_overrides(name))
+    return scene.with_overrides(**fidelity_overrides(name, scene.anatomy))

@@ -326,7 +326,8 @@ def parse_scene(data, source="<scene>"):
                 raise SceneError(source, f"{section}.{key}", str(exc)) from None
     if "fidelity" in values:                       # the preset under the file's own keys
         name = values.pop("fidelity")
-        values = fidelity_overrides(name) | values | {"fidelity": name}
+        values = (fidelity_overrides(name, values.get("anatomy", "generic")) | values
+                  | {"fidelity": name})
     scene = Scene(**values)
     items = data.get("schedule", [])
     if not isinstance(items, list):

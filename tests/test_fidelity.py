@@ -44,9 +44,9 @@ def test_presets_set_only_numerical_scene_fields_and_leave_the_model():
     assert base.level == "coarse" and base.substep_tol == 1e-3     # base unchanged
 
 
-def test_presets_rise_in_level_and_do_not_loosen_tolerances_in_order():
-    levels = [LEVELS.index(PRESETS[n]["level"]) for n in FIDELITIES]
-    assert levels == sorted(levels) and len(set(levels)) == len(levels)
+def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
+    mesh = [(LEVELS.index(PRESETS[n]["level"]), PRESETS[n]["rows"]) for n in FIDELITIES]
+    assert mesh == sorted(mesh) and len(set(mesh)) == len(mesh)
     for key in ("substep_tol", "max_substep", "newton_rtol"):
         values = [PRESETS[n][key] for n in FIDELITIES]
         assert values == sorted(values, reverse=True), key
@@ -65,7 +65,15 @@ def test_simulation_applies_the_preset_under_its_overrides():
         "substep_tol"]
     assert sim.scene.newton_rtol == 1e-7                          # the override wins
     assert sim.face.model.newton_options.rtol == 1e-7
-    assert sim.anatomy.half and sim.anatomy.mesh.n_bricks == 1449  # medium half face
+    assert sim.scene.rows == 2 and sim.anatomy.half
+    assert sim.anatomy.mesh.n_bricks == 2 * 1449                 # medium half face, 2 rows
+
+
+def test_a_preset_leaves_an_ansys_face_its_own_mesh():
+    scene = apply_fidelity(Scene(anatomy="/some/face"), "balanced")
+    assert scene.rows is None and scene.substep_tol == PRESETS["balanced"]["substep_tol"]
+    scene = parse_scene({"scene": {"fidelity": "balanced"}, "anatomy": {"source": "/f"}})
+    assert scene.rows is None
 
 
 def test_scene_file_fidelity_key_gives_defaults_that_its_own_keys_override():
