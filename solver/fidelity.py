@@ -22,9 +22,9 @@ protrusion against CPU time) of the default sweep of `python benchmarks/accuracy
 tolerances; docs/accuracy.md):
 
     preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
-    fast      medium half, 6300           0.19 / 0.06 mm                239
-    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                1334
-    accurate  fine half (2 rows), 50925   the reference                 7642
+    fast      medium half, 6300           0.19 / 0.06 mm                253
+    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                1123
+    accurate  fine half (2 rows), 50925   the reference                 7543
 
 Through-thickness rows buy more than in-plane levels (one row per layer stalls near
 0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
