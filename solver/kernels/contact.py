@@ -21,10 +21,10 @@ face, I - t t on an edge and I at a vertex.
 Side. The signed gap is g = -|d| when (x - c) . N_f <= 0 for the pseudo-normal N_f of the
 closest feature (face normal, mean of the two face normals of an edge, angle-weighted
 normal of a vertex), +|d| otherwise; g <= 0 is active. A closest point on a free boundary
-edge or vertex of an open surface has no side: such a node is out of contact on a
-deformable master; on a rigid one its penalty fades out beyond the edge
-(boundary_penalty: psi(a) phi(l / L) with the depth a behind the feature's plane and the
-distance l beyond it, C1 where it meets the face).
+edge or vertex of an open surface has no side: such a node is out of contact on a rigid
+master; on a deformable one (and beyond an edge of a slave's candidate set) its penalty
+fades out beyond the edge (boundary_penalty: psi(a) phi(l / L) with the depth a behind
+the nearest triangle's plane and the distance l beyond it, C1 where it meets the face).
 
 Penalty. With the penetration p = -g = |d|, psi(p) is k F (pure penalty; a touching node,
 p = 0, carries the stiffness k hess F but no force) or, with an onset length e > 0, a
