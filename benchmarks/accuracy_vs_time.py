@@ -96,19 +96,18 @@ STUDY_ROWS = 2             # brick rows per layer of the level study
 QUICK_DURATION = 0.05      # s
 
 
-def _ramp(muscle, start, end, to):
-    return {"muscle": muscle, "kind": "ramp", "start": start, "end": end, "to": to}
-
-
 def gesture(duration=GESTURE_DURATION, contact=True):
-    """The benchmark scene, as a dict for solver.scene.parse_scene."""
-    return {"scene": {"name": "open_round", "analysis": "transient", "duration": duration,
-                      "description": "LLSAN + DLI open the lips, then OOP + RIS"},
-            "muscles": {"driven": ["LLSAN", "DLI", "OOP", "RIS"]},
-            "effects": {"lip_contact": contact, "teeth_contact": contact},
-            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.005},
-            "schedule": [_ramp("LLSAN", 0.0, 0.04, 0.8), _ramp("DLI", 0.0, 0.04, 0.8),
-                         _ramp("OOP", 0.04, 0.08, 0.6), _ramp("RIS", 0.04, 0.08, 0.5)]}
+    """The benchmark scene, as a dict for solver.scene.parse_scene: the built-in scene
+    `open_round` (solver/scenes/open_round.toml; the realtime model of the sweep is trained
+    on it) over `duration` s."""
+    import tomllib
+    from solver.simulation import BUILTIN_DIR
+
+    with open(BUILTIN_DIR / "open_round.toml", "rb") as fh:
+        data = tomllib.load(fh)
+    data["scene"]["duration"] = duration
+    data["effects"] = {"lip_contact": contact, "teeth_contact": contact}
+    return data
 
 
 def with_rows(knobs):

@@ -4,7 +4,8 @@ A model is valid for one full-order model: the anatomy, mesh level, half face, b
 rows and the scene's effects (driven muscles, force scales, stiffening and its rule,
 contact, inertia and damping constants, density, formulation, gravity). Those make the
 key (`model_key`); its hash names the file, and the key itself is stored in the file and
-checked on loading, so a model is never used for another face or another set of effects.
+checked on loading, so a model is never used for another face or another set of effects
+(nor after the full-order physics changed: PHYSICS).
 
 Cache folder: <user cache>/rom (solver._cache.user_cache_dir: $FACEFMU_CACHE_DIR, else
 $XDG_CACHE_HOME/facefmu, else ~/.cache/facefmu), or $FACEFMU_ROM_DIR. Files are plain
@@ -29,6 +30,10 @@ from .._cache import user_cache_dir
 from ..errors import FaceFMUError
 
 FORMAT = 1
+# The full-order physics a model's snapshots came from: bumped when a term's forces change
+# (the key then differs, so older models and cached snapshot runs are not used).
+# 2: lip contact faded beyond the edge of a slave's candidate triangles (session 4).
+PHYSICS = 2
 ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
 
 
@@ -41,7 +46,7 @@ def model_key(scene):
     anatomy = scene.anatomy
     if anatomy != "generic":
         anatomy = str(Path(anatomy).resolve())
-    return {"format": FORMAT, "anatomy": anatomy, "level": scene.level if
+    return {"format": FORMAT, "physics": PHYSICS, "anatomy": anatomy, "level": scene.level if
             scene.anatomy == "generic" else "-", "half": bool(scene.half),
             "rows": scene.rows, "driven": list(scene.driven),
             "force_scale": {m: float(v) for m, v in sorted(scene.force_scale.items())
