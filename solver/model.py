@@ -9,7 +9,9 @@ load path) ramps from its value at the last converged solve to its new target wi
 load factor lam in (0, 1]. A step that fails (divergence, det F <= 0 everywhere along
 the line search, NaN, singular tangent) is cut back by half, at most ``max_cutbacks``
 times in a row; a step that converges in few iterations lets the next one grow by 1.5.
-If the solve fails, the model keeps the state it had before the call.
+A step cut below ``min_increment`` of the load fails the solve (a residual jump that no
+smaller step crosses would otherwise creep on in ever smaller steps that succeed and fail
+in turn). If the solve fails, the model keeps the state it had before the call.
 """
 
 from dataclasses import dataclass, field
@@ -139,8 +141,9 @@ class Model:
             self._system = System(self.terms, self.mesh.n_nodes, list(self._target))
         return self._system
 
-    def solve_static(self, steps=1, max_cutbacks=10, options=None):
-        """Load-stepped Newton from the current state to the current targets."""
+    def solve_static(self, steps=1, max_cutbacks=10, options=None, min_increment=1e-6):
+        """Load-stepped Newton from the current state to the current targets; a
+        StaticResult (converged False and a reason when the load could not be reached)."""
         opts = options or self.newton_options
         sysm = self.system()
         self.linear_solver.invalidate()     # Newton's reuse starts afresh: solves repeat exactly
@@ -171,6 +174,11 @@ class Model:
                                   f"{max_cutbacks} cutbacks: {rep.reason}")
                     return res
                 dlam *= 0.5
+                if dlam < min_increment:
+                    sysm.lam = 0.0
+                    res.reason = (f"load step from lam = {lam:.6g} failed: the increment "
+                                  f"fell below {min_increment:g} ({rep.reason})")
+                    return res
                 continue
             run_of_cuts = 0
             u, lam = u_new, lam_try

@@ -140,3 +140,31 @@ def test_no_locking_in_bending_at_nu_0499(formulation, locks):
     """16 x 16 within 2 % of 32 x 32 for the mean-dilatation brick; the plain brick fails."""
     coarse, fine = _cook_tip(16, formulation), _cook_tip(32, formulation)
     assert (abs(coarse / fine - 1) > 0.02) == locks
+
+
+def test_a_load_step_that_creeps_on_in_ever_smaller_steps_fails_with_a_reason(monkeypatch):
+    """Steps that succeed and fail in turn (a residual jump no smaller step crosses) shrink
+    the increment without a run of cutbacks: the solve must fail, not loop forever."""
+    import solver.model as model_module
+    from solver.newton import NewtonReport
+
+    _, model = _uniaxial_model(1.2)
+    before = model.u.copy()
+    calls, state = [], {"lam": 0.0, "allowed": 0.1}
+
+    def alternating_newton(sysm, u, targets, linear_solver, opts):
+        # converges only for steps no larger than `allowed`, which halves at each success
+        calls.append(sysm.lam)
+        if len(calls) > 5000:
+            raise RuntimeError("the load stepper did not stop")
+        if sysm.lam - state["lam"] <= state["allowed"]:
+            state["lam"], state["allowed"] = sysm.lam, state["allowed"] / 2
+            return u, 0.0, NewtonReport(True, 1, [0.0], "")
+        return None, None, NewtonReport(False, 3, [1.0], "residual jump")
+
+    monkeypatch.setattr(model_module, "newton", alternating_newton)
+    res = model.solve_static(min_increment=1e-4)
+    assert not res.converged
+    assert "increment fell below" in res.reason and "residual jump" in res.reason
+    assert len(calls) < 200
+    assert np.array_equal(model.u, before)
