@@ -319,6 +319,20 @@ def test_teeth_lie_just_behind_the_lips(paper):
     assert front[1] < ue[1] - 5.0
 
 
+def test_teeth_arches_meet_along_a_seam_and_do_not_overlap(coarse):
+    """One surface cut in two: no triangle of one arch lies on the other (coincident
+    sheets push a node twice, then once as it slides past one sheet's free edge), and
+    the arches share the seam's vertices (no gap between them)."""
+    up, lo = coarse.rigid_surfaces["upper_teeth"], coarse.rigid_surfaces["lower_teeth"]
+    c_up = up.vertices[up.triangles].mean(axis=1)
+    c_lo = lo.vertices[lo.triangles].mean(axis=1)
+    assert cKDTree(c_lo).query(c_up)[0].min() > 0.5
+    d, _ = cKDTree(lo.vertices).query(up.vertices)
+    shared = d < 1e-9
+    assert shared.sum() >= 50
+    assert np.ptp(up.vertices[shared][:, 0]) > 40.0        # along the whole arch
+
+
 # half face
 
 def test_half_face(paper, half):

@@ -50,8 +50,8 @@ FIBRES = {
 
 TEETH_PHI = np.radians(58.0)    # teeth and free (sliding) inner surface: |phi| below this
 TEETH_REACH = 18.0              # free inner surface: within this height of the row line (mm)
-TEETH_OVERLAP = 4.0             # each arch reaches this far past the row line (mm)
 TEETH_DEPTH = 0.4               # teeth surface behind the inner tissue surface (mm)
+TEETH_MARGIN = 6.0              # the teeth reach this far (mm) past the free inner surface
 
 
 def _param_points(controls, n_cables):
@@ -102,8 +102,19 @@ def _grid_surface(phi, lo, hi, n_z):
 
 
 def teeth():
-    """'upper_teeth', 'lower_teeth': smooth arches behind the lips and cheeks."""
-    phi = np.linspace(-TEETH_PHI, TEETH_PHI, 117)
+    """'upper_teeth', 'lower_teeth': smooth arches behind the lips and cheeks, one surface
+    cut along the row line: the arches meet there and share the seam's vertices. They
+    reach TEETH_MARGIN past the free inner surface (behind the tissue fixed to the skull
+    there), so that a free node sliding along them never passes their outer edge (where a
+    slave is released: a force jump).
+
+    (They used to overlap by 4 mm on either side of the row line, two coincident sheets
+    there: a lip node near the sheets' free edges inside that band was pushed by both,
+    then by one, as its nearest point crossed an edge: a force jump that made Newton
+    chatter.)"""
+    reach = TEETH_PHI + TEETH_MARGIN / 70.0        # about TEETH_MARGIN along the arch
+    phi = np.linspace(-reach, reach, 2 * int(np.ceil(58 * reach / TEETH_PHI)) + 1)
     r = shape.row_line(phi)
-    return {"upper_teeth": _grid_surface(phi, r - TEETH_OVERLAP, r + TEETH_REACH, 12),
-            "lower_teeth": _grid_surface(phi, r - TEETH_REACH, r + TEETH_OVERLAP, 12)}
+    top = TEETH_REACH + TEETH_MARGIN
+    return {"upper_teeth": _grid_surface(phi, r, r + top, 16),
+            "lower_teeth": _grid_surface(phi, r - top, r, 16)}

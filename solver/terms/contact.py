@@ -507,16 +507,48 @@ class LipContact(Term, _Report):
         self._report(np.concatenate(gaps), np.concatenate(forces), nodal)
 
 
+def joined_surfaces(surfaces, tol=1e-9):
+    """{name: RigidSurface} with the surfaces that share vertices (within tol mm) joined
+    into one (named 'a+b'): a seam between two sheets of one rigid body is then an inner
+    edge, not two free edges (at a free edge a slave is released, so a slave sliding over
+    the seam would be pushed by one sheet, then by neither, then by the other)."""
+    from ..anatomy.base import RigidSurface
+
+    groups = [(name, np.asarray(s.vertices, float), np.asarray(s.triangles, np.int64))
+              for name, s in surfaces.items()]
+    merged = True
+    while merged and len(groups) > 1:
+        merged = False
+        for i in range(len(groups)):
+            for j in range(i + 1, len(groups)):
+                (na, va, ta), (nb, vb, tb) = groups[i], groups[j]
+                d, near = cKDTree(va).query(vb)
+                if not (d <= tol).any():
+                    continue
+                new = np.flatnonzero(d > tol)                 # b's vertices not in a
+                index = near.copy()
+                index[new] = len(va) + np.arange(len(new))
+                groups[i] = (f"{na}+{nb}", np.vstack([va, vb[new]]),
+                             np.vstack([ta, index[tb]]))
+                del groups[j]
+                merged = True
+                break
+            if merged:
+                break
+    return {name: RigidSurface(v, t) for name, v, t in groups}
+
+
 def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, **options):
-    """The contact terms of an Anatomy: a RigidContact per rigid surface (named
-    '<surface>_contact'; slaves: the movable nodes of the mesh boundary within
-    teeth_distance (mm) of it at rest: the inner lip and cheek surfaces) when teeth, a LipContact when lips (mirrored on the
-    'midsagittal' nodes of a half anatomy); options go to every term (penalty, onset)."""
+    """The contact terms of an Anatomy: a RigidContact per rigid surface (surfaces that
+    share a seam joined: joined_surfaces; named '<surface>_contact'; slaves: the movable
+    nodes of the mesh boundary within teeth_distance (mm) of it at rest: the inner lip and
+    cheek surfaces) when teeth, a LipContact when lips (mirrored on the 'midsagittal'
+    nodes of a half anatomy); options go to every term (penalty, onset)."""
     mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
     terms = []
     if teeth:
         nodes = np.setdiff1d(np.unique(mesh.boundary_faces()), mesh.node_sets.get("fixed", []))
-        for name, surface in anatomy.rigid_surfaces.items():
+        for name, surface in joined_surfaces(anatomy.rigid_surfaces).items():
             terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
                                       surface, name=f"{name}_contact", **options))
     if lips:
