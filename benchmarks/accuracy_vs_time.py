@@ -2,10 +2,10 @@
 
     python benchmarks/accuracy_vs_time.py [--quick] [--duration S] [--out DIR]
                                           [--scheduler ADDRESS] [--workers 2]
-                                          [--only LABEL,LABEL] [--cost wall|cpu]
-                                          [--replot DIR]
+                                          [--only LABEL,LABEL [--merge DIR]]
+                                          [--cost wall|cpu] [--replot DIR]
 
-Scene (`gesture`): transient, the generic face, teeth and lip contact on. LLSAN and DLI
+Scene (`gesture`, the built-in scene open_round): transient, the generic face, teeth and lip contact on. LLSAN and DLI
 open the lips (0 to 0.8 over 0-0.04 s), then OOP and RIS round and retract them (OOP 0 to
 0.6, RIS 0 to 0.5 over 0.04-0.08 s), held to 0.1 s; lip aperture and protrusion recorded
 every 5 ms. The lips stay apart (aperture 0.4 mm at rest, then opening), so lip/lip
@@ -32,6 +32,9 @@ Runs (each an independent task of benchmarks.sweep; the default sweep):
   refused at t = 0.092 s.)
 * the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
+* the reduced-order fidelity `realtime` (solver.rom: its full-order knobs, coarse half face,
+  LOOSE) with the model trained on open_round (`python benchmarks/rom_train.py --scene
+  open_round`; left out, with that command printed, where no model is trained);
 * the reference (ANSYS) face at its own resolution (../shared/data/reference-face or
   $FACEFMU_REFERENCE_FACE; skipped where absent): at DEFAULT, LOOSE and full face against
   itself at TIGHT, since it has no finer mesh (its errors are time-stepping, Newton and
@@ -50,6 +53,12 @@ Level study: the generic-face runs that differ from the reference run in their l
 alone; h = (mesh volume / bricks)^(1/3) (mm); the rate p of err ~ h^p fitted by least
 squares in log-log over them (the reference's own error is left out, so p is optimistic
 as the levels near it).
+
+--only LABELS runs those runs and their references; with --merge DIR the references
+already in DIR (an earlier sweep's output) are not run again, and the table and records
+written to --out are DIR's with the runs of this call added or replaced (to place a new
+run, such as the realtime one, without running the whole sweep again; the rows keep the
+figures of the call that ran them).
 
 --quick: the sweep shrunk to run in under 3 minutes: 0.05 s of the gesture (the opening),
 the level study at the DEFAULT tolerances and the levels' own rows against the paper
@@ -144,6 +153,8 @@ def sweep_specs(quick=False, reference_face=None):
     if not quick:
         runs.append(spec("medium formulation full", ref, level="medium", formulation="full"))
     runs += preset_specs(runs, ref)
+    if not quick:
+        runs.append(realtime_spec(ref))
     if not quick and reference_face is not None and (reference_face / "newface.node").is_file():
         face, rref = str(reference_face.resolve()), "reference face tight"
         runs += [spec(rref, None, anatomy=face, **TIGHT),
@@ -153,14 +164,41 @@ def sweep_specs(quick=False, reference_face=None):
     return sorted(runs, key=_cost_guess, reverse=True)
 
 
-def select(specs, labels):
-    """The specs named in labels and their reference runs; ValueError naming unknown ones."""
+def select(specs, labels, available=()):
+    """The specs named in labels and their reference runs (but those in `available`, run
+    earlier); ValueError naming unknown ones."""
     by_label = {s["label"]: s for s in specs}
     unknown = [x for x in labels if x not in by_label]
     if unknown:
         raise ValueError(f"no run {unknown[0]!r}; runs: {', '.join(by_label)}")
-    keep = set(labels) | {by_label[x]["ref"] for x in labels}
+    keep = set(labels) | {by_label[x]["ref"] for x in labels} - set(available)
     return [s for s in specs if s["label"] in keep]
+
+
+def realtime_spec(ref):
+    """The reduced-order fidelity `realtime` (solver.rom) on the gesture: its full-order
+    knobs (solver.fidelity.REDUCED) and the model trained on the scene open_round."""
+    from solver.fidelity import REDUCED
+
+    return spec("realtime", ref, fidelity="realtime", **REDUCED["realtime"])
+
+
+def realtime_model_missing(specs, duration):
+    """Drop the realtime run from specs when no model of the gesture is trained (printing
+    the training command); the specs left."""
+    from solver.rom.store import ModelNotTrained, find_model
+    from solver.scene import parse_scene
+    from solver.fidelity import apply_fidelity
+
+    if not any(s.get("fidelity") == "realtime" for s in specs):
+        return specs
+    try:
+        find_model(apply_fidelity(parse_scene(gesture(duration)), "realtime"))
+        return specs
+    except ModelNotTrained:
+        print("realtime: no trained model of the gesture (train it with `python "
+              "benchmarks/rom_train.py --scene open_round`); its run is left out")
+        return [s for s in specs if s.get("fidelity") != "realtime"]
 
 
 def preset_specs(runs, ref):
@@ -203,12 +241,15 @@ def output_errors(rows, ref_rows):
                  for k in ("lip_aperture", "lip_protrusion"))
 
 
-def evaluate(specs, results):
-    """Table rows (dicts) from run specs and their sweep results (same order)."""
-    by_label = {s["label"]: r for s, r in zip(specs, results)}
+def evaluate(specs, results, earlier=None):
+    """Table rows (dicts) from run specs and their sweep results (same order); earlier:
+    {label: recorded rows} of runs not run here (--merge) that may be references."""
+    by_label = {label: {"error": "", "rows": rows} for label, rows in (earlier or {}).items()}
+    by_label.update({s["label"]: r for s, r in zip(specs, results)})
     table = []
     for s, r in zip(specs, results):
         row = {k: s[k] for k in ("label", *KNOBS)}
+        row["fidelity"] = s.get("fidelity", "")
         if s["anatomy"] != "generic":
             row.update(anatomy="reference", level="-")
         row["reference"] = s["ref"] or "-"
@@ -246,11 +287,12 @@ def mark_presets(table):
     from solver.fidelity import FIDELITIES, PRESETS
 
     for r in table:                   # the presets of now (a --replot of an older table)
-        r["preset"] = ""
+        r["preset"] = r.get("fidelity", "")             # "realtime": the reduced model
     for name in FIDELITIES:
         knobs = with_rows({**DEFAULT, **PRESETS[name]})
         for r in table:
-            if r["anatomy"] == "generic" and all(r[k] == knobs[k] for k in KNOBS):
+            if r["anatomy"] == "generic" and not r.get("fidelity") and \
+                    all(r[k] == knobs[k] for k in KNOBS):
                 r["preset"] = name
 
 
@@ -281,7 +323,7 @@ def level_study(table):
     return rows, rates, falls
 
 
-MARKERS = {"tight": "D", "default": "o", "loose": "v", "one loose knob": "P",
+MARKERS = {"reduced order": "*", "tight": "D", "default": "o", "loose": "v", "one loose knob": "P",
            "full face": "s", "formulation full": "X", "no stiffening": "^"}
 COLOURS = {"coarse": "tab:blue", "medium": "tab:orange", "paper": "tab:green",
            "fine": "tab:red", "-": "tab:purple"}
@@ -289,6 +331,8 @@ COLOURS = {"coarse": "tab:blue", "medium": "tab:orange", "paper": "tab:green",
 
 def family(r):
     """What a run changes: a key of MARKERS."""
+    if r.get("fidelity") == "realtime":
+        return "reduced order"
     if not r["half"]:
         return "full face"
     if r["formulation"] != DEFAULT["formulation"]:
@@ -347,7 +391,7 @@ def plot(table, path, title, cost="wall_s"):
     plt.close(fig)
 
 
-COLUMNS = ["label", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
+COLUMNS = ["label", "fidelity", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
            "formulation", "stiffening", "ndof", "h_mm", "wall_s", "cpu_s", "rtf", "peak_mb",
            "err_aperture_mm", "err_protrusion_mm", "err_mm", "pareto", "preset",
            "reference", "anatomy", "error"]
@@ -369,8 +413,8 @@ def read_table(path):
                     v = v == "True"
                 elif k in ("ndof", "rows"):
                     v = int(float(v))
-                elif k not in ("label", "level", "formulation", "preset", "reference",
-                               "anatomy", "error"):
+                elif k not in ("label", "fidelity", "level", "formulation", "preset",
+                               "reference", "anatomy", "error"):
                     v = float(v)
                 row[k] = v
             row.setdefault("error", "")
@@ -423,6 +467,10 @@ def main(argv=None):
     ap.add_argument("--cost", choices=("wall", "cpu"), default="wall",
                     help="time of the front and plot: wall_s, or cpu_s (the worker's CPU "
                          "time, the wall time on an idle core)")
+    ap.add_argument("--merge", type=Path, metavar="DIR",
+                    help="with --only: the other runs' rows, and the references of the runs "
+                         "named (not run again), from the earlier sweep in DIR "
+                         "(accuracy_vs_time.csv, records.json); all in --out")
     ap.add_argument("--replot", type=Path, metavar="DIR",
                     help="no runs: the table, front and plot again from DIR's "
                          "accuracy_vs_time.csv (for instance with another --cost)")
@@ -440,18 +488,34 @@ def main(argv=None):
     if not args.quick and not (REFERENCE_FACE / "newface.node").is_file():
         print(f"reference face not found in {REFERENCE_FACE}: its runs are skipped")
     specs = sweep_specs(args.quick, REFERENCE_FACE)
+    earlier_table, earlier = [], {}
+    if args.merge:
+        if not args.only:
+            ap.error("--merge needs --only (the runs to add or run again)")
+        earlier_table = read_table(args.merge / "accuracy_vs_time.csv")
+        with open(args.merge / "records.json") as fh:
+            earlier = {k: v for k, v in json.load(fh).items() if v}
     if args.only:
         try:
-            specs = select(specs, [x.strip() for x in args.only.split(",")])
+            specs = select(specs, [x.strip() for x in args.only.split(",")],
+                           set(earlier))
         except ValueError as exc:
             ap.error(str(exc))
+    specs = realtime_model_missing(specs, duration)
     with Sweep(args.scheduler, n_workers=args.workers) as sweep:
         print(f"{len(specs)} runs of {duration} s of the gesture on "
               f"{len(sweep.workers)} workers")
         results = run_specs(sweep, specs, duration)
+    run_here = {s["label"] for s in specs}
+    records = {k: v for k, v in earlier.items() if k not in run_here}
+    records.update({r["label"]: r.get("rows", []) for r in results})
     with open(out / "records.json", "w") as fh:      # every run's outputs over time
-        json.dump({r["label"]: r.get("rows", []) for r in results}, fh)
-    falls = summary(evaluate(specs, results), out, f"gesture over {duration} s: error "
+        json.dump(records, fh)
+    table = [r for r in earlier_table if r["label"] not in run_here]
+    if table:
+        print(f"{len(table)} rows from {args.merge}, {len(specs)} run here")
+    table += evaluate(specs, results, earlier)
+    falls = summary(table, out, f"gesture over {duration} s: error "
                     f"against {args.cost} time" + (" (--quick)" if args.quick else ""), cost)
     return 0 if falls or not args.quick else 1
 
