@@ -101,3 +101,14 @@ def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(tmp_path))
     with pytest.raises(ModelNotTrained, match="benchmarks/rom_train.py"):
         Simulation(Scene(driven=("OOP",)), fidelity="realtime")
+
+
+def test_a_levels_own_rows_given_or_not_name_the_same_model():
+    from solver.rom.store import model_key
+    from solver.simulation import resolve_scene
+
+    scene = resolve_scene("open_round").with_overrides(level="coarse", half=True)
+    assert model_key(scene.with_overrides(rows=1)) == model_key(scene)
+    assert model_key(scene.with_overrides(rows=2)) != model_key(scene)
+    fine = scene.with_overrides(level="fine")
+    assert model_key(fine.with_overrides(rows=2)) == model_key(fine)

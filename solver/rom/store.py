@@ -45,11 +45,16 @@ class ModelNotTrained(FaceFMUError, LookupError):
 def model_key(scene):
     """The fields of a solver.scene.Scene that a reduced model depends on (a dict)."""
     anatomy = scene.anatomy
+    rows = scene.rows
     if anatomy != "generic":
         anatomy = str(Path(anatomy).resolve())
+    else:                             # a level's own rows, given or not, are one model
+        from ..anatomy.generic import LEVELS
+        if rows == LEVELS[scene.level][1]:
+            rows = None
     return {"format": FORMAT, "physics": PHYSICS, "anatomy": anatomy, "level": scene.level if
             scene.anatomy == "generic" else "-", "half": bool(scene.half),
-            "rows": scene.rows, "driven": list(scene.driven),
+            "rows": rows, "driven": list(scene.driven),
             "force_scale": {m: float(v) for m, v in sorted(scene.force_scale.items())
                             if v != 1.0},
             "stiffening": bool(scene.stiffening), "stiffening_rule": scene.stiffening_rule,

@@ -27,7 +27,14 @@ free vertices it took the coarse opening-rounding gesture of
 benchmarks/accuracy_vs_time.py from 155 s with 38 cutbacks to 52 s with none, but a
 static BUC solve then hung on the jump where a node passes from a free edge's region to a
 free vertex's; with normals interpolated along the boundary the gesture took 250 s.
-A fade continuous at both needs a normal blended across each boundary vertex's wedge.)
+A fade continuous at both needs a normal blended across each boundary vertex's wedge.
+What made that gesture slow was the generic face's teeth geometry: a lip node sliding
+past the upper sheet's top edge while pressed on it, and two arches overlapping as
+coincident sheets. The generic teeth are now one surface, cut in two along the row line
+and reaching 6 mm past the free inner surface (solver/anatomy/generic_muscles.py), and
+build_contact_terms joins rigid surfaces that share a seam into one term
+(joined_surfaces): the coarse gesture takes 20 s with no cutback. The release remains
+where a node can reach a sheet's real edge.)
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
 below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
