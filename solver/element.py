@@ -51,12 +51,12 @@ def reference_geometry(nodes, bricks):
     nodes (n, 3), bricks (m, 8) -> detJ (m, 8 gp), dN/dX (m, 8 gp, 8 nodes, 3).
     dN/dX is NaN-free only where detJ > 0.
     """
-    xe = nodes[bricks]                                   # (m, 8, 3)
-    jac = np.einsum("gak,maj->mgjk", DN_DXI, xe)         # dX_j/dxi_k (m, g, 3, 3)
-    det = np.linalg.det(jac)
-    safe = np.where(np.abs(det)[..., None, None] > 0, jac, np.eye(3))
-    inv = np.linalg.inv(safe)                            # dxi_k/dX_j
-    dndx = np.einsum("gak,mgkj->mgaj", DN_DXI, inv)
+    from .kernels.geometry import brick_geometry
+
+    bricks = np.ascontiguousarray(bricks, dtype=np.int64)
+    det = np.empty((len(bricks), 8))
+    dndx = np.empty((len(bricks), 8, 8, 3))
+    brick_geometry(np.ascontiguousarray(nodes, dtype=np.float64), bricks, DN_DXI, det, dndx)
     return det, dndx
 
 

@@ -67,3 +67,19 @@ def test_inverted_state_is_flagged(rng):
     ue = -2.0 * X                                  # F = -I: inverted everywhere
     E, f, K, jmin = element_response(ue, dn, w, P)
     assert jmin < 0 and not np.isfinite(E)
+
+
+@pytest.mark.parametrize("shape", sorted(SHAPES))
+def test_reference_geometry_reproduces_linear_fields_and_the_volume(shape, rng):
+    """sum_a x_a (x) dN_a/dX = I at every Gauss point (the gradient of X is exact), any
+    linear field's gradient is exact, and sum_g det J = the element's volume."""
+    X, dn, det = _element(shape, rng)
+    assert np.all(det > 0)
+    for g in range(8):
+        assert np.allclose(X.T @ dn[g], np.eye(3), atol=1e-12)
+    A = rng.standard_normal((3, 3))
+    for g in range(8):
+        assert np.allclose((X @ A.T).T @ dn[g], A, atol=1e-12)
+    box = (NODE_XI + 1) / 2 * np.array([2.0, 3.0, 1.5])          # 2 x 3 x 1.5 mm
+    det0, _ = reference_geometry(box, np.arange(8)[None])
+    assert abs(det0.sum() - 9.0) < 1e-12
