@@ -11,6 +11,7 @@ robust yet: the transient scenes carry it), so an aperture of 0 may mean lips cr
 """
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -21,7 +22,8 @@ from solver.scene import parse_scene
 from solver.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = ROOT / ".." / "shared" / "data" / "reference-face"
+REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
+                            ROOT / ".." / "shared" / "data" / "reference-face"))
 CASES = {"RIS": {"RIS": 1.0}, "BUC": {"BUC": 1.0}, "OOP": {"OOP": 1.0},
          "OOP + BUC": {"OOP": 1.0, "BUC": 1.0}}
 KEYS = ("lip_aperture", "lip_protrusion", "lip_width")

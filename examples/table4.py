@@ -14,6 +14,7 @@ Writes OUT/table4.md and out/table4.csv.
 """
 
 import argparse
+import os
 import csv
 import time
 from pathlib import Path
@@ -25,7 +26,8 @@ from solver.simulation import Simulation
 from solver.strain import log_principal_strains
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = ROOT / ".." / "shared" / "data" / "reference-face"
+REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
+                            ROOT / ".." / "shared" / "data" / "reference-face"))
 # the paper's Table 4: maximum compressive strain in the OOP region at t = 0.01 ... 0.1 s
 PAPER = (-0.13, -0.13, -0.19, -0.27, -0.33, -0.41, -0.45, -0.51, -0.55, -0.56)
 PAPER_AVG_RATE = -6.5   # 1/s, the paper's maximum average compressive strain rate
