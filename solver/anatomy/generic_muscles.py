@@ -113,7 +113,7 @@ def teeth():
     then by one, as its nearest point crossed an edge: a force jump that made Newton
     chatter.)"""
     reach = TEETH_PHI + TEETH_MARGIN / 70.0        # about TEETH_MARGIN along the arch
-    phi = np.linspace(-reach, reach, 2 * int(np.ceil(58 * reach / TEETH_PHI)) + 1)
+    phi = np.linspace(-reach, reach, 2 * int(np.ceil(np.degrees(reach))) + 1)  # 1 deg apart
     r = shape.row_line(phi)
     top = TEETH_REACH + TEETH_MARGIN
     return {"upper_teeth": _grid_surface(phi, r, r + top, 16),

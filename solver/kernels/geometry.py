@@ -16,7 +16,8 @@ def brick_geometry(nodes, bricks, dndxi, det, dndx):
         for g in range(8):
             j00 = j01 = j02 = j10 = j11 = j12 = j20 = j21 = j22 = 0.0
             for a in range(8):
-                x0, x1, x2 = nodes[bricks[e, a], 0], nodes[bricks[e, a], 1], nodes[bricks[e, a], 2]
+                n = bricks[e, a]
+                x0, x1, x2 = nodes[n, 0], nodes[n, 1], nodes[n, 2]
                 d0, d1, d2 = dndxi[g, a, 0], dndxi[g, a, 1], dndxi[g, a, 2]
                 j00 += x0 * d0
                 j01 += x0 * d1
