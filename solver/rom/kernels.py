@@ -23,6 +23,17 @@ from ..kernels.brick import _element
 
 
 @njit(cache=True)
+def _gather(Ve_e, q, ue):
+    """ue (8, 3) = the brick's displacements V_e q (Ve_e (24, r), q (r,))."""
+    for a in range(8):
+        for i in range(3):
+            acc = 0.0
+            for j in range(q.shape[0]):
+                acc += Ve_e[3 * a + i, j] * q[j]
+            ue[a, i] = acc
+
+
+@njit(cache=True)
 def reduced_bricks(q, Ve, w, dndX, wgp, params, form, sparams, s, need_k, fr, kr):
     """q (r,), Ve (k, 24, r), w (k,), dndX (k, 8, 8, 3), wgp (k, 8), params (k, 6) of
     the tissue (formulation form), sparams (k, 6) of the unit stiffening (form 'full'),
@@ -40,12 +51,7 @@ def reduced_bricks(q, Ve, w, dndX, wgp, params, form, sparams, s, need_k, fr, kr
     kv = np.empty((24, r))
     jmin = np.inf
     for e in range(k):
-        for a in range(8):
-            for i in range(3):
-                acc = 0.0
-                for j in range(r):
-                    acc += Ve[e, 3 * a + i, j] * q[j]
-                ue[a, i] = acc
+        _gather(Ve[e], q, ue)
         _, jm = _element(ue, dndX[e], wgp[e], params[e], form, need_k, fe, ke)
         jmin = min(jmin, jm)
         if jm <= 0.0:
@@ -141,12 +147,7 @@ def brick_tangents_split(q, Ve, w, dndX, wgp, params, form, sparams, slot, kt, k
     kv = np.empty((24, r))
     jmin = np.inf
     for e in range(k):
-        for a in range(8):
-            for i in range(3):
-                acc = 0.0
-                for j in range(r):
-                    acc += Ve[e, 3 * a + i, j] * q[j]
-                ue[a, i] = acc
+        _gather(Ve[e], q, ue)
         _, jm = _element(ue, dndX[e], wgp[e], params[e], form, True, fe, ke)
         jmin = min(jmin, jm)
         if jm <= 0.0:
