@@ -147,6 +147,8 @@ def test_block_on_rigid_plane_carries_the_load():
     np.testing.assert_allclose(term.nodal_force.sum(axis=0), [0.0, 0.0, F], atol=0.01 * F)
     assert term.total_force == pytest.approx(F, rel=0.01)
     assert term.max_penetration < 0.05
+    np.testing.assert_array_equal(np.flatnonzero(term.touching()),
+                                  np.sort(mesh.node_sets["zmin"]))
     # uniform pressure F / L^2 on k = penalty * area: a uniform penetration
     np.testing.assert_allclose(-term.gap, F / L**2 / PENALTY, rtol=1e-3)
 

@@ -144,3 +144,16 @@ def test_held_activation_settles_on_the_static_equilibrium():
     now, target = lip_outputs(sim), lip_outputs(static)
     assert abs(target["lip_protrusion"]) > 5.0             # a large motion
     assert max(abs(now[k] - target[k]) for k in now) < 0.02
+
+
+def test_step_error_leaves_out_the_nodes_in_contact():
+    """The local error estimate skips nodes a contact pushed on at either end of the
+    substep (their velocity jumps at impact: the penalty's stiff mode), not the others."""
+    dv = np.zeros(9)
+    dv[0:3], dv[3:6], dv[6:9] = 5.0, -1.0, 0.5      # node 0 hits, node 1 touches, node 2 free
+    h = 2e-3
+    before, after = np.array([False, True, False]), np.array([True, True, False])
+    assert Transient._error(dv, h, before, after) == pytest.approx(0.5 * h * 0.5)
+    assert Transient._error(dv, h, None, after) == pytest.approx(0.5 * h * 5.0)   # unknown
+    nothing = np.zeros(3, dtype=bool)
+    assert Transient._error(dv, h, nothing, nothing) == pytest.approx(0.5 * h * 5.0)

@@ -42,6 +42,8 @@ class Term:
     """Base class; see the module docstring."""
 
     name = "term"
+    nonsmooth = False       # its force switches on and off (contact); then touching():
+                            # (n,) bool, the nodes it pushed on at its last evaluation
 
     def blocks(self):
         return []

@@ -298,7 +298,14 @@ def _check(penalty, onset):
 
 
 class _Report:
-    """Contact measures of the last assembly (see the module docstring)."""
+    """Contact measures of the last assembly (see the module docstring); ``touching()``
+    (n,) bool: the mesh nodes the contact pushed on then (solver.transient leaves the nodes
+    whose contact switched within a step out of its error estimate)."""
+
+    nonsmooth = True
+
+    def touching(self):
+        return np.any(self.nodal_force != 0.0, axis=1)
 
     def _report(self, gap, force, nodal_force):
         active = gap <= 0
@@ -308,7 +315,7 @@ class _Report:
         self.total_force = float(force.sum())
 
 
-class RigidContact(Term, _Report):
+class RigidContact(_Report, Term):
     """Frictionless penalty contact of slave nodes on a rigid triangulated surface.
 
     mesh            solver.Mesh
@@ -391,7 +398,7 @@ class RigidContact(Term, _Report):
         self._report(gap, force, nodal)
 
 
-class LipContact(Term, _Report):
+class LipContact(_Report, Term):
     """Frictionless two-pass penalty contact between the upper and the lower lip.
 
     mesh           solver.Mesh
