@@ -72,6 +72,9 @@ class Simulation:
         if fidelity is not None:
             from .fidelity import apply_fidelity
             scene = apply_fidelity(scene, fidelity)
+        if str(overrides.get("anatomy", "generic")) != "generic" and "rows" not in overrides:
+            overrides["rows"] = None        # the scene's rows (e.g. its preset's) set the
+                                            # generic mesh; an ANSYS face keeps its own
         self.scene = scene.with_overrides(**overrides) if overrides else scene
         sc = self.scene
         self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half, sc.rows)

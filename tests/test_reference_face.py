@@ -202,3 +202,19 @@ def test_element_with_missing_node_names_file_and_line(copy):
     edit_line(copy / "newface.node", 60, lambda s: None)     # node 60, in element 1
     with pytest.raises(MeshFileError, match=r"newface\.elem:1: element 1 refers to node 60"):
         load_ansys_face(copy)
+
+
+def test_a_generic_scene_at_a_preset_runs_on_the_reference_face(face):
+    """A scene whose preset sets the generic mesh's rows (balanced: 2) can be moved to the
+    ANSYS face by an override: its own mesh, the preset's tolerances (benchmarks/fast_path.py
+    case a); rows given with it are still refused."""
+    from solver.errors import ParameterError
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    spec = {"scene": {"name": "t", "analysis": "static", "fidelity": "balanced"},
+            "muscles": {"driven": ["OOP"]}}
+    sim = Simulation(parse_scene(spec), anatomy=str(DATA), half=True)
+    assert sim.scene.rows is None and sim.scene.substep_tol == 1e-3
+    assert 0 < sim.anatomy.mesh.n_nodes < face.mesh.n_nodes          # the half face
+    with pytest.raises(ParameterError, match="rows"):
+        Simulation(parse_scene(spec), anatomy=str(DATA), rows=2)
