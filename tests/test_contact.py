@@ -11,7 +11,7 @@ import pytest
 import solver
 from solver.anatomy.base import RigidSurface
 from solver.assembly import Assembly, Pattern
-from solver.kernels.contact import FACE, VERTEX, nearest
+from solver.kernels.contact import FACE, VERTEX, nearest, penalty_law
 from solver.meshgen import box
 from solver.terms.base import State
 from solver.terms.contact import (PENALTY, LipContact, RigidContact, nodes_near,
@@ -88,14 +88,14 @@ def two_blocks(gap=0.0, rng=None, jitter=0.0):
 
 # ------------------------------------------------------------------ tangents (FD)
 
-@pytest.mark.parametrize("onset", [0.0, 0.5])
-def test_rigid_tangent_matches_finite_differences_on_faces_edges_and_vertices(rng, onset):
+@pytest.mark.parametrize("smoothing", [0.0, 0.2])
+def test_rigid_tangent_matches_finite_differences_on_faces_edges_and_vertices(rng, smoothing):
     # a pyramid pit z = 0.2 (|x| + |y|): creases along x = 0 and y = 0 (concave edges),
     # its apex a concave vertex; the block's bottom nodes sit over the apex, the creases
     # and the flat faces
     pit = grid_surface(4, 12.0, lambda x, y: 0.2 * (np.abs(x) + np.abs(y)))
     mesh = box(2, 2, 1, (6.0, 6.0, 2.0), origin=(-3.0, -3.0, 1.3))
-    term = RigidContact(mesh, mesh.node_sets["zmin"], pit, onset=onset)
+    term = RigidContact(mesh, mesh.node_sets["zmin"], pit, smoothing=smoothing)
     u = rng.normal(0.0, 0.05, (mesh.n_nodes, 3))
     u[:, 2] -= 1.6
     err_k, err_r = fd_errors(term, u)
@@ -106,16 +106,15 @@ def test_rigid_tangent_matches_finite_differences_on_faces_edges_and_vertices(rn
         regions.add(nearest(mesh.nodes[node] + u[node], pit.vertices, pit.triangles,
                             term.tri[i:i + 1], w, np.empty(3))[1])
     assert FACE in regions and regions & {1, 2, 3} and max(regions) >= VERTEX
-    if onset:
-        p = -term.gap
-        assert (p < onset).any() and (p > onset).any()          # both branches of the law
+    if smoothing:            # beyond the smoothing: the tangent is exact on edges too
+        assert (-term.gap > smoothing).all()
     assert err_k < 1e-5 and err_r < 1e-5
 
 
-@pytest.mark.parametrize("onset", [0.0, 0.2])
-def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, onset):
+@pytest.mark.parametrize("smoothing", [0.0, 0.05])
+def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, smoothing):
     mesh, ida, idb, fa, fb = two_blocks(rng=rng, jitter=0.15)   # warped master triangles
-    term = LipContact(mesh, fb, fa, onset=onset)
+    term = LipContact(mesh, fb, fa, smoothing=smoothing)
     u = rng.normal(0.0, 0.05, (mesh.n_nodes, 3))
     u[idb, 2] -= 0.4
     err_k, err_r = fd_errors(term, u)
@@ -124,6 +123,36 @@ def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, onset)
     # the master-side forces balance the slave-side ones, pair by pair
     np.testing.assert_allclose(term.nodal_force.sum(axis=0), 0.0, atol=1e-12)
     assert err_k < 1e-5 and err_r < 1e-5
+
+
+@pytest.mark.parametrize("lift", [-0.03, 0.03])
+def test_smoothed_law_is_consistent_on_both_sides_of_the_surface(rng, lift):
+    """With smoothing s, nodes within s of a face (in front or behind) carry force and
+    stiffness, from the exact derivatives of the smoothed energy; at s = 0 the nodes in
+    front carry none."""
+    s = 0.1
+    plane = grid_surface(5, 20.0)
+    mesh = box(2, 2, 1, (4.0, 4.0, 2.0), origin=(-2.0, -2.0, 0.0))
+    u = rng.normal(0.0, 0.005, (mesh.n_nodes, 3))
+    u[:, 2] += lift
+    term = RigidContact(mesh, mesh.node_sets["zmin"], plane, smoothing=s)
+    err_k, err_r = fd_errors(term, u)
+    assert (np.abs(term.gap) < s).all() and (term.force > 0).all()
+    assert err_k < 1e-5 and err_r < 1e-5
+    pure = RigidContact(mesh, mesh.node_sets["zmin"], plane)
+    Runner(pure, len(u))(u)
+    assert (pure.force > 0).any() == (lift < 0)
+
+
+def test_smoothed_law_is_c2_and_matches_the_pure_one_beyond_the_smoothing():
+    k, s = 3.0, 0.1
+    for p in (-s, s):                                   # C2 joins
+        lo, hi = penalty_law(p - 1e-9, k, s), penalty_law(p + 1e-9, k, s)
+        np.testing.assert_allclose(lo, hi, atol=1e-7)
+    psi, f, kk = penalty_law(0.4, k, s)
+    assert f == pytest.approx(k * 0.4) and kk == k      # force k p beyond s, as the pure law
+    assert penalty_law(-s, k, s) == (0.0, 0.0, 0.0)
+    assert penalty_law(-1e-3, k, 0.0) == (0.0, 0.0, 0.0)
 
 
 # ----------------------------------------------------------------- rigid surface

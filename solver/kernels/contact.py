@@ -26,11 +26,14 @@ master; on a deformable one (and beyond an edge of a slave's candidate set) its 
 fades out beyond the edge (boundary_penalty: psi(a) phi(l / L) with the depth a behind
 the nearest triangle's plane and the distance l beyond it, C1 where it meets the face).
 
-Penalty. With the penetration p = -g = |d|, psi(p) is k F (pure penalty; a touching node,
-p = 0, carries the stiffness k hess F but no force) or, with an onset length e > 0, a
-cubic onset k p^3 / (6 e) joined (C2) to k (F - e p / 2 + e^2 / 6): then
-grad psi = a grad F, hess psi = a hess F + b grad F grad F^T with a = psi' / p,
-b = (psi'' - psi' / p) / p^2, both bounded (no 1/|d| on edges and vertices).
+Penalty. With the penetration p = -g (signed: negative outside), psi(p) is k p^2 / 2 =
+k F for p >= 0 (pure penalty; a touching node, p = 0, carries the stiffness k hess F but no
+force) or, with a smoothing length s > 0, k (p + s)^3 / (12 s) over -s < p < s joined (C2)
+to k (p^2 / 2 + s^2 / 6) (penalty_law): the contact begins at a gap s with no stiffness and
+no kink. In terms of u = +-d / |d| (the direction of growing penetration) grad psi =
+psi' N (x) u and hess psi = psi'' (N (x) u)(N (x) u)^T + (psi' / |d|) (hess F - (N (x) u)
+(N (x) u)^T) (pair_penalty); the bracket is O(|d|) on a face, so the last term stays
+bounded there; on an edge or a vertex it is taken over max(|d|, s).
 """
 
 import numpy as np
@@ -246,37 +249,56 @@ def distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke):
 
 
 @njit(cache=True)
-def penalty_law(p, k, onset):
-    """The penalty energy of a penetration p >= 0 (mm), stiffness k (N/mm), cubic onset
-    over onset (mm): psi = k p^3 / (6 onset) for p < onset, else
-    k (p^2 / 2 - onset p / 2 + onset^2 / 6). Returns (psi, psi', a, b), where
-    grad psi = a grad F and hess psi = a hess F + b grad F grad F^T for F = p^2 / 2
-    (onset = 0: psi = k F, a = k, b = 0)."""
-    if p >= onset:
-        a = k * (1.0 - 0.5 * onset / p) if p > 0.0 else k
-        b = 0.5 * k * onset / p ** 3 if onset > 0.0 else 0.0
-        return k * (0.5 * p * p - 0.5 * onset * p + onset * onset / 6.0), a * p, a, b
-    b = 0.5 * k / (onset * p) if p > 0.0 else 0.0
-    return k * p ** 3 / (6.0 * onset), 0.5 * k * p * p / onset, 0.5 * k * p / onset, b
+def penalty_law(p, k, smooth):
+    """The penalty energy of a signed penetration p (mm; negative: a gap), stiffness k
+    (N/mm), smoothed over |p| < smooth (mm): psi = k (p + s)^3 / (12 s) there, k (p^2 / 2 +
+    s^2 / 6) for p >= s and 0 for p <= -s (s = smooth; s = 0: k p^2 / 2 for p >= 0).
+    Returns (psi, psi', psi'')."""
+    if p >= smooth:
+        return k * (0.5 * p * p + smooth * smooth / 6.0), k * p, k
+    q = p + smooth
+    if q <= 0.0:
+        return 0.0, 0.0, 0.0
+    return k * q ** 3 / (12.0 * smooth), 0.25 * k * q * q / smooth, 0.5 * k * q / smooth
 
 
 @njit(cache=True)
-def pair_penalty(x, xm, region, w, dist, k, onset, nloc, need_k, fe, ke):
-    """Penalty energy of a penetrating pair (see distance_derivatives, penalty_law): fills
-    fe, ke; returns (psi, the normal force psi' (N))."""
+def pair_penalty(x, xm, region, w, dist, inside, m, k, smooth, nloc, need_k, fe, ke):
+    """Penalty energy of a pair at distance dist, inside (penetrating) or not, m (3,) the
+    outward (pseudo-)normal (see distance_derivatives, penalty_law): fills fe, ke; returns
+    (psi, the normal force psi' (N)). With u = +-d / |d| the direction of growing
+    penetration, grad p = N (x) u and hess p = (hess F - grad p grad p^T) / |d|. On a face
+    the bracket is O(|d|) (the master's rotation; 0 on a rigid face); on an edge or a vertex
+    it is not, and there it is taken over max(|d|, smooth): the tangent is exact but for
+    the curvature of the distance around an edge or vertex closer than smooth."""
     distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke)
-    psi, force, a, b = penalty_law(dist, k, onset)
+    p = dist if inside else -dist
+    psi, dpsi, ddpsi = penalty_law(p, k, smooth)
+    if dist > 1e-12:
+        c = (1.0 if inside else -1.0) / dist
+        u = np.array([fe[0] * c, fe[1] * c, fe[2] * c])      # the slave block of grad F is d
+    else:
+        u = -m
+    nw = np.array([1.0, -w[0], -w[1], -w[2]])
     if need_k:
-        for r in range(fe.shape[0]):
-            for q in range(fe.shape[0]):
-                ke[r, q] = a * ke[r, q] + b * fe[r] * fe[q]
-    for r in range(fe.shape[0]):
-        fe[r] *= a
-    return psi, force
+        if dist > 1e-12 and (dist > smooth or region == FACE):
+            c = dpsi * (1.0 if inside else -1.0) / dist
+        elif smooth > 0.0:
+            c = dpsi * (1.0 if inside else -1.0) / smooth
+        else:
+            c = k                                           # the pure law's limit at p = 0
+        n = 3 * nloc
+        for r in range(n):
+            gr = nw[r // 3] * u[r % 3]
+            for q in range(n):
+                ke[r, q] = c * ke[r, q] + (ddpsi - c) * gr * nw[q // 3] * u[q % 3]
+    for r in range(3 * nloc):
+        fe[r] = dpsi * nw[r // 3] * u[r % 3]
+    return psi, dpsi
 
 
 @njit(cache=True)
-def boundary_penalty(d, m, k, onset, fade, need_k, g, H):
+def boundary_penalty(d, m, k, smooth, fade, need_k, g, H):
     """Penalty of a point beyond a free boundary feature, faded over the length fade (mm):
     E = psi(a) phi(l / fade) with the depth a = -m . d behind the feature's plane (normal
     m (3,)), the distance l = |d_perp| beyond it, d_perp = d - (m . d) m, psi the penalty
@@ -290,14 +312,13 @@ def boundary_penalty(d, m, k, onset, fade, need_k, g, H):
     g[:] = 0.0
     if need_k:
         H[:, :] = 0.0
-    if a <= 0.0 or s >= 1.0:
+    if a <= -smooth or (a <= 0.0 and smooth == 0.0) or s >= 1.0:
         return 0.0, a
     phi, q = 1.0 - s * s * (3.0 - 2.0 * s), -6.0 * (1.0 - s)     # q = phi'(s) / s
-    psi, dpsi, ca, cb = penalty_law(a, k, onset)
+    psi, dpsi, ddpsi = penalty_law(a, k, smooth)
     f2 = fade * fade
     g[:] = -dpsi * phi * m + psi * q * dp / f2
     if need_k:
-        ddpsi = ca + cb * a * a
         r = 6.0 * psi / (f2 * fade * l) if l > 0.0 else 0.0
         for i in range(3):
             for j in range(3):
@@ -310,7 +331,7 @@ def boundary_penalty(d, m, k, onset, fade, need_k, g, H):
 
 @njit(cache=True)
 def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, depth,
-                  onset, need_k, fe, ke, gap, force, tri):
+                  smooth, need_k, fe, ke, gap, force, tri):
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
     (zero where inactive), gap (s,) (signed; inf without a candidate or beyond a free
@@ -330,12 +351,13 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
         tri[i] = cand[ptr[i] + j]
         if free:                       # beyond a free edge or vertex: no side
             continue
-        if not sd <= 0.0 or dist > depth:
+        inside = sd <= 0.0
+        if (inside and dist > depth) or (not inside and dist >= smooth):
             gap[i] = dist
             continue
-        gap[i] = -dist
-        psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, k[i], onset, 1, need_k,
-                                     fe[i], ke[i])
+        gap[i] = -dist if inside else dist
+        psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, inside, m, k[i], smooth, 1,
+                                     need_k, fe[i], ke[i])
         energy += psi
     return energy
 
@@ -355,7 +377,7 @@ def _pair_free(pair_free, p, region):
 
 @njit(cache=True)
 def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, free_vertex,
-                    depth, onset, need_k, fe, ke, gap, force, active, kept, pair_free=None,
+                    depth, smooth, need_k, fe, ke, gap, force, active, kept, pair_free=None,
                     fade=1.0):
     """Slave nodes slaves (s,) with stiffness k (s,) on deformable triangles tris (t, 3),
     current node positions x (n, 3); the candidate pairs of slave i are
@@ -389,7 +411,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             free = free or _pair_free(pair_free, p, region)
         if free:                       # the faded penalty on the triangle's plane
             d[:] = xs - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
-            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], onset, fade, need_k,
+            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, need_k,
                                             g, H)
             if psi <= 0.0:
                 gap[i] = dist
@@ -408,14 +430,15 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
             energy += psi
             continue
-        if not sd <= 0.0:
+        inside = sd <= 0.0
+        if not inside and dist >= smooth:
             gap[i] = dist
             continue
-        gap[i], active[i] = -dist, p
+        gap[i], active[i] = (-dist if inside else dist), p
         if need_k:
             kept[i] = p
-        psi, force[i] = pair_penalty(xs, xm, region, w, dist, k[i], onset, 4, need_k,
-                                     fe[p], ke[p])
+        psi, force[i] = pair_penalty(xs, xm, region, w, dist, inside, m, k[i], smooth, 4,
+                                     need_k, fe[p], ke[p])
         energy += psi
     return energy
 

@@ -84,7 +84,7 @@ class _Rigid:
             self.rebuilds += 1
         # the slaves' tangents too (cheap): tangent() projects them without a new call
         rigid_contact(self.xs, t.k, t.vertices, t.tris, self.ptr, self.cand,
-                      *t.normals.args(), t.search_radius, t.onset, True, self.fe, self.ke,
+                      *t.normals.args(), t.search_radius, t.smoothing, True, self.fe, self.ke,
                       self.gap, self.force, self.tri, *self.extra)
         return project_slaves(self.Vs, self.fe, self.ke, self.gap, self.force, need_k, fr,
                               kr, self.kv)
@@ -134,7 +134,7 @@ class _Lip:
             surface_normals(x, nrm.tris, nrm.topo.nbr, nrm.verts, nrm.fn, nrm.en, nrm.vn)
             mirror_normals(nrm.en, w["mirror"][0], w["mirror"][1], nrm.vn, w["mirror"][2])
             surface_contact(x, p["slaves"], p["k"], nrm.tris, p["ptr"], p["pair_tri"],
-                            *nrm.args(), t.depth, t.onset, True, w["fe"], w["ke"],
+                            *nrm.args(), t.depth, t.smoothing, True, w["fe"], w["ke"],
                             w["gap"], w["force"], w["active"], w["kept"], *w["extra"])
             f, h = project_pairs(w["Vb"], w["fe"], w["ke"], w["active"], w["force"], need_k,
                                  fr, kr, self.kv)
