@@ -31,10 +31,21 @@ instead runs the new path under cProfile for --duration (default 0.05 s) and pri
 top functions.
 --quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO where
 it installs; the FMU takes SuperLU). --md FILE writes the table as markdown too.
+
+Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
+every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
+fixed_step, predictor), ``newton.X`` a field of solver.newton.NewtonOptions (rtol, utol,
+refactor_ratio), ``contact.X`` an attribute of each contact term (smoothing, penalty),
+``damping.X`` of the damping term (refresh); ``--contact both|teeth|lips|none`` the
+contact terms built. The table then gains the column "set". ``--records FILE`` saves
+the recorded outputs (JSON, per case and path); ``--against FILE`` adds the columns
+vs_aperture_mm and vs_protrusion_mm, the largest differences from the same case and path
+in such a file (e.g. the run without --set).
 """
 
 import argparse
 import cProfile
+import json
 import os
 import pstats
 import sys
@@ -57,37 +68,70 @@ PATHS = {"old": {"newton": dict(reuse=False), "transient": {}},
          "new": {"newton": {}, "transient": {}}}
 
 
-def gesture(duration=DURATION):
-    """The benchmark scene, as a dict for solver.scene.parse_scene."""
+def gesture(duration=DURATION, contact="both"):
+    """The benchmark scene, as a dict for solver.scene.parse_scene; contact: which contact
+    terms ('both', 'teeth', 'lips', 'none')."""
     def ramp(m, to):
         return {"muscle": m, "kind": "ramp", "start": 0.0, "end": 0.15, "to": to}
     return {"scene": {"name": "fast_path_gesture", "analysis": "transient",
                       "duration": duration, "fidelity": "balanced",
                       "description": "OOP + RIS rounding with lip and teeth contact"},
             "muscles": {"driven": ["OOP", "RIS"]},
-            "effects": {"lip_contact": True, "teeth_contact": True},
+            "effects": {"lip_contact": contact in ("both", "lips"),
+                        "teeth_contact": contact in ("both", "teeth")},
             "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.01},
             "schedule": [ramp("OOP", 1.0), ramp("RIS", 0.5)]}
 
 
-def build(case, duration, path, linear_solver="auto"):
-    """A Simulation of the gesture for case 'a' | 'b', set up for path 'old' | 'new'."""
+def build(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
+    """A Simulation of the gesture for case 'a' | 'b', set up for path 'old' | 'new', with
+    the knobs [(KEY, value)] of --set applied last."""
     from solver.scene import parse_scene
     from solver.simulation import Simulation
-    sim = Simulation(parse_scene(gesture(duration)), linear_solver=linear_solver,
+    sim = Simulation(parse_scene(gesture(duration, contact)), linear_solver=linear_solver,
                      **CASES[case])
     opts = PATHS[path]
     for k, v in opts["newton"].items():
         setattr(sim.face.model.newton_options, k, v)
     for k, v in opts["transient"].items():
         setattr(sim.integrator, k, v)
+    for key, value in knobs:
+        for target in _knob_targets(sim, key):
+            setattr(target, key.split(".", 1)[1], value)
     return sim
 
 
-def run(case, duration, path, linear_solver="auto"):
+def _knob_targets(sim, key):
+    """The objects that a --set KEY addresses."""
+    group = key.split(".", 1)[0]
+    if group == "transient":
+        return [sim.integrator]
+    if group == "newton":
+        return [sim.face.model.newton_options]
+    if group == "damping":
+        return [sim.integrator.damping]
+    if group == "contact":
+        return list(sim.contact)
+    raise SystemExit(f"--set {key}: the group must be transient, newton, damping or contact")
+
+
+def parse_knob(text):
+    """'group.name=value' -> ('group.name', value as int, float, bool or str)."""
+    key, sep, raw = text.partition("=")
+    if not sep or "." not in key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected group.name=value")
+    for cast in (int, float):
+        try:
+            return key, cast(raw)
+        except ValueError:
+            pass
+    return key, {"true": True, "false": False}.get(raw.lower(), raw)
+
+
+def run(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
     """One run: a row of figures and the recorded outputs."""
     t0 = time.perf_counter()
-    sim = build(case, duration, path, linear_solver)
+    sim = build(case, duration, path, linear_solver, knobs, contact)
     t_build = time.perf_counter() - t0
     sysm = sim.face.model.system()
     lin = sim.face.model.linear_solver
@@ -159,7 +203,14 @@ def main(argv=None):
     ap.add_argument("--linear-solver", default="auto")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--md")
+    ap.add_argument("--set", dest="knobs", action="append", type=parse_knob, default=[],
+                    metavar="GROUP.NAME=VALUE")
+    ap.add_argument("--contact", choices=("both", "teeth", "lips", "none"), default="both")
+    ap.add_argument("--records", type=Path)
+    ap.add_argument("--against", type=Path)
     args = ap.parse_args(argv)
+    against = json.loads(args.against.read_text()) if args.against else None
+    saved = {}
     cases = [args.only] if args.only else sorted(CASES)
     if not REFERENCE_FACE.is_dir() and "a" in cases:
         print(f"case a skipped: no reference face at {REFERENCE_FACE}")
@@ -175,8 +226,15 @@ def main(argv=None):
     for case in cases:
         runs = {}
         for path in paths:
-            row, rec = run(case, duration, path, args.linear_solver)
+            row, rec = run(case, duration, path, args.linear_solver, args.knobs,
+                           args.contact)
             runs[path] = rec
+            saved[f"{case}/{path}"] = rec
+            if against is not None:
+                other = against.get(f"{case}/{path}", [])
+                row["vs_aperture_mm"] = max_diff(rec, other, "lip_aperture") if other else "-"
+                row["vs_protrusion_mm"] = max_diff(rec, other, "lip_protrusion") if other \
+                    else "-"
             ref = runs[paths[0]]
             row["d_aperture_mm"] = max_diff(rec, ref, "lip_aperture")
             row["d_protrusion_mm"] = max_diff(rec, ref, "lip_protrusion")
@@ -184,13 +242,18 @@ def main(argv=None):
             row["protrusion_end_mm"] = rec[-1]["lip_protrusion"]
             row["end_s"] = rec[-1]["time"]
             row["target_s"] = TARGETS[case] * duration / DURATION
+            row["set"] = " ".join(f"{k}={v}" for k, v in args.knobs) + (
+                f" contact={args.contact}" if args.contact != "both" else "") or "-"
             table.append(row)
             print(f"  {case} {path}: {row['wall_s']:.2f} s to t = {row['end_s']:.3f} s "
                   f"{row['failed']}", flush=True)
     keys = ["case", "path", "solver", "dof", "build_s", "wall_s", "target_s", "rtf", "substeps",
             "newton_its", "factorizations", "assemblies", "residuals", "cutbacks",
             "d_aperture_mm", "d_protrusion_mm", "aperture_end_mm", "protrusion_end_mm",
-            "failed"]
+            "failed"] + (["set"] if args.knobs or args.contact != "both" else []) + (
+                ["vs_aperture_mm", "vs_protrusion_mm"] if against is not None else [])
+    if args.records:
+        args.records.write_text(json.dumps(saved))
     print(f"\ngesture of {duration} s at the balanced preset (wall times; the machine may "
           f"be shared)")
     report(table, keys)

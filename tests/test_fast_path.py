@@ -167,3 +167,31 @@ def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
     ref = SuperLU()
     ref.factorize(A)
     assert np.allclose(ref.solve(b), lin.solve(b) * 3.0, atol=1e-10)
+
+
+def test_benchmark_knobs_parse_and_reach_their_objects():
+    """benchmarks/fast_path.py --set: values typed, each group reaches its objects, a
+    wrong group or a missing '=' is refused."""
+    import argparse
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.fast_path import _knob_targets, parse_knob
+    assert parse_knob("transient.fixed_step=0.005") == ("transient.fixed_step", 0.005)
+    assert parse_knob("newton.max_iter=30") == ("newton.max_iter", 30)
+    assert parse_knob("transient.predictor=none") == ("transient.predictor", "none")
+    assert parse_knob("transient.even_steps=true") == ("transient.even_steps", True)
+    with pytest.raises(argparse.ArgumentTypeError):
+        parse_knob("tol=0.01")
+
+    class Sim:                                   # the attributes _knob_targets reads
+        integrator = type("I", (), {"damping": "D"})()
+        face = type("F", (), {"model": type("M", (), {"newton_options": "N"})()})()
+        contact = ["C1", "C2"]
+    sim = Sim()
+    assert _knob_targets(sim, "transient.tol") == [sim.integrator]
+    assert _knob_targets(sim, "newton.rtol") == ["N"]
+    assert _knob_targets(sim, "damping.refresh") == ["D"]
+    assert _knob_targets(sim, "contact.smoothing") == ["C1", "C2"]
+    with pytest.raises(SystemExit):
+        _knob_targets(sim, "mesh.level")
