@@ -22,14 +22,14 @@ protrusion against CPU time) of the default sweep of `python benchmarks/accuracy
 tolerances; docs/accuracy.md):
 
     preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
-    fast      medium half, 6300           0.19 / 0.06 mm                253
-    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                1123
-    accurate  fine half (2 rows), 50925   the reference                 7543
+    fast      medium half, 6300           0.18 / 0.06 mm                203
+    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                904
+    accurate  fine half (2 rows), 50925   the reference                 5123
 
 Through-thickness rows buy more than in-plane levels (one row per layer stalls near
 0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
-full face's lip outputs; mean dilatation is needed ("full" locks). The coarse level is off
-the front on that gesture (its lips chatter on the free edge of the teeth sheets). On an
+full face's lip outputs; mean dilatation is needed ("full" locks). The coarse level is
+cheap and 1.2 mm off (the reduced-order `realtime` fidelity is built on it). On an
 ANSYS face a preset sets the tolerances and half face only (rows and level are the
 generic face's).
 """

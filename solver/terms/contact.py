@@ -60,10 +60,11 @@ at a gap s, with a stiffness growing from zero, so a node that grazes the surfac
 kink for Newton's line search to stop at; the penetration at a force f >= k_i s is f / k_i
 as with the pure law, and a node pressed by less stays within s of the surface. The
 tangent is exact but for the curvature of the distance around an edge or a vertex closer
-than s. Measured (benchmarks/fast_path.py gesture, paper half face, 0.1 s at the
-balanced tolerances): 40.7 s, 478 Newton iterations and 259 factorizations at s = 0;
-36.9 s at s = 0.02 mm; 29.5 s, 391 and 185 at s = 0.05 mm, whose lip aperture and
-protrusion then differ by 0.04 mm. Off by default (s = 0).
+than s. Measured (`python benchmarks/fast_path.py --only b --paths new --duration 0.1
+--set contact.smoothing=S`, docs/fast_path.md): 43.9 s, 478 Newton iterations and 259
+factorizations at s = 0; 36.0 s at s = 0.02 mm; 26.8 s, 391 and 185 at s = 0.05 mm, whose
+lip aperture and protrusion then differ by 0.04 mm; over the whole 0.3 s gesture, though,
+s = 0.05 mm stalled at t = 0.156 s after every cutback. Off by default (s = 0).
 
 Penalty choice: PENALTY = 1 N/mm^3, pure penalty, no augmented Lagrangian. A node with
 the force f penetrates by f / (penalty A_i), i.e. a contact pressure p by p / penalty;
