@@ -23,8 +23,8 @@ Runs (each an independent task of benchmarks.sweep; the default sweep):
   DEFAULT tolerances shows on the coarser levels, where TIGHT, DEFAULT and LOOSE runs
   differ (and on the reference face against its TIGHT run).
 * coarse, medium and paper with their own rows (one per layer, the paper's) at DEFAULT
-  and LOOSE tolerances, medium also at TIGHT: what the thickness resolution and the
-  tolerances cost in error;
+  and LOOSE tolerances, medium also at TIGHT, and medium with two rows at LOOSE: what the
+  thickness resolution and the tolerances cost in error;
 * the full face and stiffening off on the medium level; formulation "full" on the coarse
   and the medium half face. (The coarse level is slow for its size on this gesture: its
   lips chatter on the teeth's edge, see solver/terms/contact.py; its full-face and TIGHT
@@ -146,6 +146,9 @@ def sweep_specs(quick=False, reference_face=None):
         runs += [spec(lv, ref, level=lv) for lv in levels[:-1]]
         runs += [spec("medium tight", ref, level="medium", **TIGHT)]
     runs += [spec(f"{lv} loose", ref, level=lv, **LOOSE) for lv in levels[:3]]
+    if not quick:                   # the thickness at LOOSE: a cheaper balanced?
+        runs.append(spec(f"medium {STUDY_ROWS} rows loose", ref, level="medium",
+                         rows=STUDY_ROWS, **LOOSE))
     whole = "coarse" if quick else "medium"       # half against full face
     runs += [spec(f"{whole} full face", ref, level=whole, half=False),
              spec("coarse formulation full", ref, level="coarse", formulation="full"),

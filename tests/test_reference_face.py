@@ -214,7 +214,9 @@ def test_a_generic_scene_at_a_preset_runs_on_the_reference_face(face):
     spec = {"scene": {"name": "t", "analysis": "static", "fidelity": "balanced"},
             "muscles": {"driven": ["OOP"]}}
     sim = Simulation(parse_scene(spec), anatomy=str(DATA), half=True)
-    assert sim.scene.rows is None and sim.scene.substep_tol == 1e-3
+    from solver.fidelity import PRESETS
+    assert sim.scene.rows is None
+    assert sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
     assert 0 < sim.anatomy.mesh.n_nodes < face.mesh.n_nodes          # the half face
     with pytest.raises(ParameterError, match="rows"):
         Simulation(parse_scene(spec), anatomy=str(DATA), rows=2)
