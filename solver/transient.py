@@ -17,10 +17,11 @@ their targets at t1 (``hold="ramp"``, a first-order hold) or jump at t0 (``hold=
 Local error estimate of a substep: err = h/2 ||v_{n+1} - v_n||_inf (mm), the difference
 between backward and forward Euler displacements; a substep is accepted when
 err <= tol, and the next step is h * clip(0.9 sqrt(tol / err), 0.3, 2), at most max_substep.
-Contact events are left out: the nodes that a nonsmooth term (contact, ``Term.nonsmooth``)
-pushed on at one end of the substep and not at the other. Their velocity jumps at the
-impact or release (a penalty stops a node within sqrt(m / k), microseconds), which no step
-resolves, and the estimate there only shrank the steps (on the gesture of
+Nodes in contact are left out: those that a nonsmooth term (contact, ``Term.nonsmooth``)
+pushed on at either end of the substep. Their velocity jumps at an impact or a release and,
+while they touch, follows the penalty's stiff mode (a penalty stops a node within
+sqrt(m / k), microseconds), which no step resolves; the estimate there only shrank the
+steps (on the gesture of
 benchmarks/fast_path.py, paper level, such a node held the largest estimate in nearly
 every rejected substep). The rest of the face, the neighbours of those nodes included,
 still sets it; the lip outputs of benchmarks/accuracy_vs_time.py's runs moved by 0.002 mm
@@ -261,8 +262,8 @@ class Transient:
     @staticmethod
     def _error(dv, h, touch, touch_new):
         """The local error estimate h/2 ||dv||_inf (mm) of a substep, dv (3 n,) its change
-        of velocity, over the nodes whose contact did not switch (touch, touch_new: (n,)
-        bool at its start and end, or None where unknown: then over all nodes)."""
+        of velocity, over the nodes no contact pushed on at either end (touch, touch_new:
+        (n,) bool at its start and end, or None where unknown: then over all nodes)."""
         a = np.abs(dv).reshape(-1, 3).max(axis=1)
         if touch is not None and touch_new is not None:
             a = a[~(touch | touch_new)]

@@ -306,7 +306,7 @@ def _check(penalty, smoothing):
 class _Report:
     """Contact measures of the last assembly (see the module docstring); ``touching()``
     (n,) bool: the mesh nodes the contact pushed on then (solver.transient leaves the nodes
-    whose contact switched within a step out of its error estimate)."""
+    touched at either end of a step out of its error estimate)."""
 
     nonsmooth = True
 
