@@ -144,6 +144,20 @@ def test_smoothed_law_is_consistent_on_both_sides_of_the_surface(rng, lift):
     assert (pure.force > 0).any() == (lift < 0)
 
 
+def test_smoothed_lip_law_is_consistent_before_the_lips_touch(rng):
+    """Two blocks 0.03 mm apart with smoothing 0.1 mm: both passes push before contact,
+    over the deformable masters' faces, with the exact tangent (master rotation included)."""
+    mesh, ida, idb, fa, fb = two_blocks(gap=0.03)
+    term = LipContact(mesh, fb, fa, smoothing=0.1)
+    u = rng.normal(0.0, 0.003, (mesh.n_nodes, 3))
+    err_k, err_r = fd_errors(term, u)
+    touching = term.force > 0
+    assert touching.sum() >= 10 and (term.gap[touching] > 0).all()
+    assert all((q["active"] >= 0).any() for q in term.passes)
+    np.testing.assert_allclose(term.nodal_force.sum(axis=0), 0.0, atol=1e-12)
+    assert err_k < 1e-5 and err_r < 1e-5
+
+
 def test_smoothed_law_is_c2_and_matches_the_pure_one_beyond_the_smoothing():
     k, s = 3.0, 0.1
     for p in (-s, s):                                   # C2 joins

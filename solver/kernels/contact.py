@@ -272,19 +272,18 @@ def pair_penalty(x, xm, region, w, dist, inside, m, k, smooth, nloc, need_k, fe,
     it is not, and there it is taken over max(|d|, smooth): the tangent is exact but for
     the curvature of the distance around an edge or vertex closer than smooth."""
     distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke)
-    p = dist if inside else -dist
-    psi, dpsi, ddpsi = penalty_law(p, k, smooth)
+    sgn = 1.0 if inside else -1.0
+    psi, dpsi, ddpsi = penalty_law(sgn * dist, k, smooth)
     if dist > 1e-12:
-        c = (1.0 if inside else -1.0) / dist
-        u = np.array([fe[0] * c, fe[1] * c, fe[2] * c])      # the slave block of grad F is d
+        u = np.array([fe[0], fe[1], fe[2]]) * (sgn / dist)    # the slave block of grad F is d
     else:
         u = -m
     nw = np.array([1.0, -w[0], -w[1], -w[2]])
     if need_k:
         if dist > 1e-12 and (dist > smooth or region == FACE):
-            c = dpsi * (1.0 if inside else -1.0) / dist
+            c = sgn * dpsi / dist
         elif smooth > 0.0:
-            c = dpsi * (1.0 if inside else -1.0) / smooth
+            c = sgn * dpsi / smooth
         else:
             c = k                                           # the pure law's limit at p = 0
         n = 3 * nloc
