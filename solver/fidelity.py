@@ -41,11 +41,12 @@ from .errors import ParameterError
 
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
 DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6)
+STEP_LOOSE = dict(DEFAULTS, substep_tol=1e-2)     # DEFAULTS but the substep error tolerance
 
 PRESETS = {
     "fast": dict(level="medium", rows=1, half=True, formulation="mean_dilatation", **LOOSE),
     "balanced": dict(level="medium", rows=2, half=True, formulation="mean_dilatation",
-                     **DEFAULTS),
+                     **STEP_LOOSE),
     "accurate": dict(level="fine", rows=2, half=True, formulation="mean_dilatation",
                      **DEFAULTS),
 }

@@ -125,6 +125,30 @@ def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, smooth
     assert err_k < 1e-5 and err_r < 1e-5
 
 
+def test_setting_the_penalty_scales_every_contact_force(rng):
+    """The penalty knob (benchmarks/fast_path.py --set contact.penalty=P) rescales the
+    stiffness of every slave, in both passes of the lips; the gaps stay."""
+    mesh, ida, idb, fa, fb = two_blocks(rng=rng, jitter=0.15)
+    u = rng.normal(0.0, 0.05, (mesh.n_nodes, 3))
+    u[idb, 2] -= 0.4
+    pit = grid_surface(4, 12.0, lambda x, y: 0.2 * (np.abs(x) + np.abs(y)))
+    block = box(2, 2, 1, (6.0, 6.0, 2.0), origin=(-3.0, -3.0, 1.3))
+    v = rng.normal(0.0, 0.05, (block.n_nodes, 3))
+    v[:, 2] -= 1.6
+    for term, w in ((LipContact(mesh, fb, fa), u),
+                    (RigidContact(block, block.node_sets["zmin"], pit), v)):
+        run = Runner(term, len(w))
+        before = run(w).residual
+        gap = term.gap.copy()
+        term.penalty = 0.25 * PENALTY
+        assert term.penalty == 0.25 * PENALTY
+        np.testing.assert_allclose(run(w).residual, 0.25 * before, atol=1e-15)
+        np.testing.assert_array_equal(term.gap, gap)
+        with pytest.raises(solver.ParameterError, match="penalty"):
+            term.penalty = -1.0
+        assert term.penalty == 0.25 * PENALTY
+
+
 @pytest.mark.parametrize("lift", [-0.03, 0.03])
 def test_smoothed_law_is_consistent_on_both_sides_of_the_surface(rng, lift):
     """With smoothing s, nodes within s of a face (in front or behind) carry force and

@@ -313,6 +313,19 @@ class _Report:
     def touching(self):
         return np.any(self.nodal_force != 0.0, axis=1)
 
+    @property
+    def penalty(self):
+        """N/mm^3; setting it rescales the slaves' stiffnesses (an experiment's knob:
+        benchmarks/fast_path.py --set contact.penalty=P)."""
+        return self._penalty
+
+    @penalty.setter
+    def penalty(self, value):
+        _check(value, self.smoothing)
+        for k in self._stiffnesses():
+            k *= value / self._penalty
+        self._penalty = float(value)
+
     def _report(self, gap, force, nodal_force):
         active = gap <= 0
         self.gap, self.force, self.nodal_force = gap, force, nodal_force
@@ -360,6 +373,7 @@ class RigidContact(_Report, Term):
         self.dropped = slaves[~keep]
         self.slaves = slaves[keep]
         self.initial_gap = gap0[keep]
+        self._penalty = float(penalty)
         self.k = penalty * area[keep]
         centroids = self.vertices[tris].mean(axis=1)
         self._tree = cKDTree(centroids)
@@ -369,6 +383,9 @@ class RigidContact(_Report, Term):
         self._fe, self._ke = np.zeros((s, 3)), np.zeros((s, 3, 3))
         self.tri = -np.ones(s, dtype=np.int64)
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((mesh.n_nodes, 3)))
+
+    def _stiffnesses(self):
+        return [self.k]
 
     def _rest_gaps(self, tris, x):
         """(s,) signed gaps of points x (s, 3) to the triangles tris, whatever their
@@ -430,6 +447,7 @@ class LipContact(_Report, Term):
             raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
         self.name, self.mesh, self.fade = name, mesh, float(fade)
         self.depth, self.smoothing = float(depth), float(smoothing)
+        self._penalty = float(penalty)
         n = mesh.n_nodes
         mirror = None
         if mirror_nodes is not None:
@@ -459,6 +477,9 @@ class LipContact(_Report, Term):
         self.k = np.concatenate([q["k"] for q in self.passes])
         s = len(self.slaves)
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((n, 3)))
+
+    def _stiffnesses(self):
+        return [q["k"] for q in self.passes] + [self.k]
 
     @property
     def n_pairs(self):
