@@ -23,14 +23,19 @@ tolerances; docs/accuracy.md):
 
     preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
     fast      medium half, 6300           0.18 / 0.06 mm                203
-    balanced  medium half 2 rows, 11025   0.14 / 0.11 mm                904
+    balanced  medium half 2 rows, 11025   0.15 / 0.12 mm                455
     accurate  fine half (2 rows), 50925   the reference                 5123
 
-`balanced` keeps the DEFAULT tolerances. Medium with 2 rows at LOOSE is on the front too
-(run back to back: 36.5 s of CPU against 69.8 s, 0.148 against 0.141 mm), but at LOOSE the
-reference full face failed benchmarks/fast_path.py's contact gesture at t = 0.18 s (Newton
-stalled after every cutback), which it runs through at DEFAULT. Through-thickness rows buy more than in-plane levels (one row per layer stalls near
-0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
+`balanced` takes the DEFAULT tolerances but a substep error tolerance of 1e-2 mm
+(STEP_LOOSE). Run back to back on one worker (docs/accuracy.md), that halved its CPU
+time (45.5 s against 93.2 s for the 0.1 s gesture) for 0.148 against 0.141 mm: the mesh
+error hides the time-stepping error. Medium 2 rows at LOOSE (also 10 ms substeps and
+Newton 1e-4) costs as much (43.5 s) for the same error, but at LOOSE the reference full
+face failed benchmarks/fast_path.py's contact gesture at t = 0.18 s (Newton stalled after
+every cutback), which it runs through at STEP_LOOSE. (balanced's real-time factor is from
+that one-worker run, the others from the whole sweep, hours apart on a machine whose speed
+drifts.) Through-thickness rows buy more than in-plane levels (one row per layer stalls
+near 0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
 full face's lip outputs; mean dilatation is needed ("full" locks). The coarse level is
 cheap and 1.2 mm off (the reduced-order `realtime` fidelity is built on it). On an
 ANSYS face a preset sets the tolerances and half face only (rows and level are the

@@ -11,7 +11,7 @@ import pytest
 import solver
 from solver.anatomy.base import RigidSurface
 from solver.assembly import Assembly, Pattern
-from solver.kernels.contact import FACE, VERTEX, nearest, penalty_law
+from solver.kernels.contact import FACE, VERTEX, boundary_penalty, nearest, penalty_law
 from solver.meshgen import box
 from solver.terms.base import State
 from solver.terms.contact import (PENALTY, LipContact, RigidContact, nodes_near,
@@ -180,6 +180,41 @@ def test_smoothed_lip_law_is_consistent_before_the_lips_touch(rng):
     assert all((q["active"] >= 0).any() for q in term.passes)
     np.testing.assert_allclose(term.nodal_force.sum(axis=0), 0.0, atol=1e-12)
     assert err_k < 1e-5 and err_r < 1e-5
+
+
+@pytest.mark.parametrize("smoothing", [0.0, 0.02])
+def test_faded_penalty_beyond_a_free_edge_has_exact_derivatives(rng, smoothing):
+    """E = psi(a) phi(l / L) of a point beyond a free edge (solver.kernels.contact.
+    boundary_penalty): its gradient and Hessian in d against central differences, over
+    the whole fade band and depths on both sides of the smoothing."""
+    def energy(d, m):
+        g, H = np.empty(3), np.empty((3, 3))
+        return boundary_penalty(d, m, 3.0, smoothing, 0.5, True, g, H)[0], g, H
+
+    h, checked = 1e-6, 0
+    for _ in range(40):
+        m = rng.normal(size=3)
+        m /= np.linalg.norm(m)
+        t = np.cross(m, rng.normal(size=3))
+        t /= np.linalg.norm(t)
+        a, l = rng.uniform(0.005, 0.1), rng.uniform(0.02, 0.48)
+        d = -a * m + l * t
+        E, g, H = energy(d, m)
+        assert E > 0.0
+        gfd, Hfd = np.empty(3), np.empty((3, 3))
+        for j in range(3):
+            e = np.zeros(3)
+            e[j] = h
+            (Ep, gp, _), (Em, gm, _) = energy(d + e, m), energy(d - e, m)
+            gfd[j] = (Ep - Em) / (2 * h)
+            Hfd[:, j] = (gp - gm) / (2 * h)
+        np.testing.assert_allclose(g, gfd, rtol=1e-6, atol=1e-9 * np.abs(g).max())
+        np.testing.assert_allclose(H, Hfd, rtol=1e-5, atol=1e-6 * np.abs(H).max())
+        checked += 1
+    assert checked == 40
+    # beyond the fade length, and in front of the plane, nothing
+    assert energy(-0.05 * m + 0.51 * t, m)[0] == 0.0
+    assert energy(0.05 * m + 0.2 * t, m)[0] == 0.0
 
 
 def test_smoothed_law_is_c2_and_matches_the_pure_one_beyond_the_smoothing():
