@@ -35,9 +35,9 @@ face failed benchmarks/fast_path.py's contact gesture at t = 0.18 s (Newton stal
 every cutback), which it runs through at STEP_LOOSE. (balanced's real-time factor is from
 that one-worker run, the others from the whole sweep, hours apart on a machine whose speed
 drifts.) Through-thickness rows buy more than in-plane levels (one row per layer stalls
-near 0.18 mm); tolerances cost little accuracy against the mesh error; the half face gives the
-full face's lip outputs; mean dilatation is needed ("full" locks). The coarse level is
-cheap and 1.2 mm off (the reduced-order `realtime` fidelity is built on it). On an
+near 0.18 mm); tolerances cost little accuracy against the mesh error; the half face
+gives the full face's lip outputs; mean dilatation is needed ("full" locks). The coarse
+level is cheap and 1.2 mm off (the reduced-order `realtime` fidelity is built on it). On an
 ANSYS face a preset sets the tolerances and half face only (rows and level are the
 generic face's).
 """

@@ -322,8 +322,9 @@ class _Report:
     @penalty.setter
     def penalty(self, value):
         _check(value, self.smoothing)
+        scale = value / self._penalty
         for k in self._stiffnesses():
-            k *= value / self._penalty
+            k *= scale
         self._penalty = float(value)
 
     def _report(self, gap, force, nodal_force):
