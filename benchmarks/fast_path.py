@@ -23,7 +23,8 @@ Each case runs with each path (build time apart, the numba kernels compiled befo
 
 and prints per case and path: wall time (s), real-time factor (wall / simulated time),
 substeps, Newton iterations, factorizations, assemblies with tangent, residual-only
-evaluations, and the largest difference (mm) between the paths' lip aperture and
+evaluations, the deepest contact penetration at the recorded times (penetration_mm, the
+contact terms' own gaps), and the largest difference (mm) between the paths' lip aperture and
 protrusion over the recorded times (the paths share the convergence criteria, so they
 must agree to a small multiple of the Newton tolerance). A run whose step fails after
 every cutback is reported (column failed) with its figures up to there. --profile
@@ -137,7 +138,7 @@ def run(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
     lin = sim.face.model.linear_solver
     f0 = getattr(lin, "factorizations", 0)
     c0 = dict(sysm.counters)
-    totals = {"substeps": 0, "newton_its": 0, "cutbacks": 0}
+    totals = {"substeps": 0, "newton_its": 0, "cutbacks": 0, "penetration_mm": 0.0}
     t0 = time.perf_counter()
     rows, failed = [], ""
     try:
@@ -157,7 +158,10 @@ def run(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
 
 
 def _count(sim, totals):
-    """Add the statistics of the simulation's last step to totals."""
+    """Add the statistics of the simulation's last step to totals, and keep the deepest
+    contact penetration (mm) at the recorded times."""
+    for term in sim.contact:
+        totals["penetration_mm"] = max(totals["penetration_mm"], term.max_penetration)
     if sim.t > 0:
         totals["substeps"] += sim.last.substeps
         totals["newton_its"] += sim.last.newton_iterations
@@ -249,6 +253,7 @@ def main(argv=None):
                   f"{row['failed']}", flush=True)
     keys = ["case", "path", "solver", "dof", "build_s", "wall_s", "target_s", "rtf", "substeps",
             "newton_its", "factorizations", "assemblies", "residuals", "cutbacks",
+            "penetration_mm",
             "d_aperture_mm", "d_protrusion_mm", "aperture_end_mm", "protrusion_end_mm",
             "failed"] + (["set"] if args.knobs or args.contact != "both" else []) + (
                 ["vs_aperture_mm", "vs_protrusion_mm"] if against is not None else [])

@@ -195,3 +195,20 @@ def test_benchmark_knobs_parse_and_reach_their_objects():
     assert _knob_targets(sim, "contact.smoothing") == ["C1", "C2"]
     with pytest.raises(SystemExit):
         _knob_targets(sim, "mesh.level")
+
+
+def test_benchmark_counts_steps_and_keeps_the_deepest_penetration():
+    """benchmarks/fast_path.py's per-record tally: statistics summed over steps, the
+    deepest penetration of any contact term kept (not the last one)."""
+    import sys
+    from pathlib import Path
+    from types import SimpleNamespace as NS
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.fast_path import _count
+    sim = NS(t=0.01, last=NS(substeps=2, newton_iterations=5, cutbacks=1),
+             contact=[NS(max_penetration=0.02), NS(max_penetration=0.05)])
+    totals = {"substeps": 0, "newton_its": 0, "cutbacks": 0, "penetration_mm": 0.0}
+    _count(sim, totals)
+    sim.contact[1].max_penetration = 0.01
+    _count(sim, totals)
+    assert totals == {"substeps": 4, "newton_its": 10, "cutbacks": 2, "penetration_mm": 0.05}
