@@ -24,9 +24,9 @@ Each case runs with each path (build time apart, the numba kernels compiled befo
 and prints per case and path: wall time (s), real-time factor (wall / simulated time),
 substeps, Newton iterations, factorizations, assemblies with tangent, residual-only
 evaluations, the deepest contact penetration at the recorded times (penetration_mm, the
-contact terms' own gaps), and the largest difference (mm) between the paths' lip aperture and
-protrusion over the recorded times (the paths share the convergence criteria, so they
-must agree to a small multiple of the Newton tolerance). A run whose step fails after
+contact terms' own gaps), and the largest difference (mm) between the paths' lip
+aperture and protrusion over the recorded times (the paths share the convergence
+criteria, so they must agree to a small multiple of the Newton tolerance). A run whose step fails after
 every cutback is reported (column failed) with its figures up to there. --profile
 instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.
