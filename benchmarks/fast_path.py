@@ -26,9 +26,9 @@ substeps, Newton iterations, factorizations, assemblies with tangent, residual-o
 evaluations, the deepest contact penetration at the recorded times (penetration_mm, the
 contact terms' own gaps), and the largest difference (mm) between the paths' lip
 aperture and protrusion over the recorded times (the paths share the convergence
-criteria, so they must agree to a small multiple of the Newton tolerance). A run whose step fails after
-every cutback is reported (column failed) with its figures up to there. --profile
-instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
+criteria, so they must agree to a small multiple of the Newton tolerance). A run whose
+step fails after every cutback is reported (column failed) with its figures up to there.
+--profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.
 --quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO where
 it installs; the FMU takes SuperLU). --md FILE writes the table as markdown too.
