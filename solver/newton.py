@@ -44,10 +44,17 @@ u_k stays close to u_j. The tangent is assembled and refactorized at u_k when
     * the reused direction is not one of descent (du . r >= 0 while the force criterion
       does not hold; a positive definite K(u_j) gives du . r = -r K(u_j)^-1 r < 0).
 
-The convergence criteria, the line search and the failure tests are those above; on a
-reused factorization an iterate costs a residual and a solve (no tangent), and the
-line search's residual at the accepted step, when it was the last one evaluated, is the
-next iterate's. A failed solve invalidates the factorization. ``reuse = False`` is full
+The convergence criteria and the failure tests are those above. A reused
+factorization's direction is taken at its full step or not at all: when the full step
+fails the line search's test for s = 1 (or, once the force criterion holds, when ||r||
+grew), the step is dropped (counted in NewtonReport.stale_steps) and the tangent is
+factorized at u_k for a Newton step with the line search. A stale direction that
+overshoots is a poor one to search along: on the lip gesture of
+benchmarks/fast_path.py the search cut such steps to s ~ 0.02 over up to ten residual
+evaluations, and the next iterate refactorized anyway (a stale tangent without the
+stiffness of a contact that had closed since). On a reused factorization an iterate
+costs a residual and a solve (no tangent), and the residual at the accepted step, when it
+was the last one evaluated, is the next iterate's. A failed solve invalidates the factorization. ``reuse = False`` is full
 Newton: the tangent assembled and factorized at every iterate.
 """
 
@@ -79,6 +86,7 @@ class NewtonReport:
     residuals: list = field(default_factory=list)   # ||r_f|| at each iterate
     reason: str = ""
     factorizations: int = 0
+    stale_steps: int = 0            # reused factorizations' steps dropped for a new one
 
 
 class NewtonFailure(Exception):
@@ -266,15 +274,26 @@ def _newton(system, u0, targets, lin, opts, tag):
             return None, None, report
         slow = it > 0 and not balanced and rn > opts.refactor_ratio * report.residuals[it - 1]
         try:
-            du, data = _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report)
+            du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, slow,
+                                       balanced, report)
+            line = _Line(system, u, du)
+            if reused and not _full_step_taken(line, r, balanced):
+                report.stale_steps += 1
+                du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, True,
+                                           balanced, report)
+                line = _Line(system, u, du)
         except RuntimeError as exc:           # singular factorization
             report.reason = f"linear solver failed: {exc}"
             return None, None, report
         if not np.all(np.isfinite(du)):
             report.reason = "linear solve gave a non-finite update (singular tangent?)"
             return None, None, report
-        line = _Line(system, u, du)
-        s = _admissible_fraction(line, opts) if np.any(dup) else _line_search(line, r, opts)
+        if reused:
+            s = 1.0
+        elif np.any(dup):
+            s = _admissible_fraction(line, opts)
+        else:
+            s = _line_search(line, r, opts)
         if s is None:
             report.reason = "line search found no admissible state (elements invert)"
             return None, None, report
@@ -294,17 +313,30 @@ def _reusable(lin, opts, tag):
 
 
 def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report):
-    """(du, data): Newton's update at u, on a reused factorization where that is allowed
-    (module docstring; balanced: the force criterion holds, so that r is at the level of
-    rounding and du . r may have any sign), else on a new one of the tangent at u
+    """(du, data, reused): Newton's update at u, on a reused factorization where that is
+    allowed (module docstring; balanced: the force criterion holds, so that r is at the
+    level of rounding and du . r may have any sign), else on a new one of the tangent at u
     (assembled if data is None: the residual is then evaluated again with it)."""
     if _reusable(lin, opts, tag) and not slow and not np.any(dup):
         du = _direction(system, r, None, dup, lin)
         if np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
-            return du, data
+            return du, data, True
     if data is None:
         r2, data = _evaluate(system, u, True)
         if r2 is None:
             raise RuntimeError(data)
     _factorize(system, lin, data, tag, report)
-    return _direction(system, r, data, dup, lin), data
+    return _direction(system, r, data, dup, lin), data, False
+
+
+def _full_step_taken(line, r0, balanced):
+    """Whether the full step along a reused factorization's direction stands: admissible,
+    and the line search's test for s = 1 (|g(1)| <= |g(0)| / 2, or g(1) of the sign of
+    g(0) with ||r|| not grown; balanced: ||r|| not grown, whatever the signs)."""
+    r1 = line(1.0)
+    g1 = _g(line.du, r1)
+    if g1 is None:
+        return False
+    g0 = float(line.du @ r0)
+    kept = float(np.linalg.norm(r1)) <= float(np.linalg.norm(r0))
+    return abs(g1) <= 0.5 * abs(g0) or (kept and (balanced or g1 * g0 > 0))

@@ -29,12 +29,17 @@ at most (docs/accuracy.md).
 A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
 the caller's step fails and the model goes back to its state at t0.
 
-Landing on t1: the remnant R - (n - 1) h of a caller step may be tiny, and the next
-caller step then starts from it. With ``even_steps`` the span left, R = t1 - t, is split
-into n = ceil(R / h) equal substeps of R / n <= h (each still error-controlled), and a
-step shortened to land does not shrink the next caller step's first substep. Off by
-default: on the gesture of benchmarks/fast_path.py it changed the substep sequence
-through the lip contact for the worse (more Newton iterations, no fewer substeps).
+Landing on t1: a substep shortened to land on t1 (h < the proposal) does not shrink the
+next proposal: that is the larger of the proposal and h times the growth factor, when
+the factor is >= 1. (Before, the shortened step's growth set it: with caller steps of
+10 ms and 5 ms substeps a 1.7 ms remnant was followed by 3.3 ms and 5 ms substeps and
+another remnant, three substeps per caller step where two do; on the gesture of
+benchmarks/fast_path.py, case b, 90 substeps instead of 102.) The remnant
+R - (n - 1) h of a caller step may still be tiny. With ``even_steps`` the span left,
+R = t1 - t, is split into n = ceil(R / h) equal substeps of R / n <= h (each still
+error-controlled). Off by default: on the gesture of benchmarks/fast_path.py it changed
+the substep sequence through the lip contact for the worse (more Newton iterations, no
+fewer substeps).
 
 Newton's start (warm start, ``predictor``): "velocity" u_n + h v_n (default), "quadratic"
 u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}) (the velocity extrapolated from the last two
@@ -243,7 +248,7 @@ class Transient:
             stats.history.append((t, h, rep.iterations))
             if self.fixed_step is None:
                 grow = 2.0 if err == 0 else min(2.0, max(0.3, 0.9 * np.sqrt(self.tol / err)))
-                landed = self.even_steps and h < h_prop and grow >= 1.0
+                landed = h < h_prop and grow >= 1.0
                 h_prop = min(max(h * grow, h_prop) if landed else h * grow, self.max_substep)
                 self.h = h_prop
         self.t = t_end

@@ -97,6 +97,34 @@ def test_factorization_is_reused_only_for_the_same_system_and_key():
     assert np.abs(u2 - u1).max() < 1e-4
 
 
+def test_a_stale_factorizations_overshooting_step_is_dropped_for_a_new_one():
+    """The factorization of the bar's equilibrium under 1 x the force, reused (same key)
+    for 100 x: its full step fails the line search's test, so Newton drops it and
+    factorizes at the same iterate (no search along the stale direction); same answer as
+    full Newton."""
+    sysm, tg, u0 = _substep_case(1.0)
+    lin, opts = make_solver("auto"), NewtonOptions(reuse=True)
+    u1, _, rep1 = newton(sysm, u0, tg, lin, opts, key=1.0)
+    assert rep1.converged and rep1.stale_steps == 0
+    sysm.term("nodal_forces").target[:] *= 100.0
+    u2, _, rep2 = newton(sysm, u1, tg, lin, opts, key=1.0)
+    assert rep2.converged and rep2.stale_steps >= 1 and rep2.factorizations >= 1
+    u_full, _, rep_full = newton(sysm, u1, tg, make_solver("auto"), NewtonOptions(reuse=False))
+    assert rep_full.converged and rep_full.stale_steps == 0
+    assert np.abs(u_full - u1).max() > 1.0
+    assert np.abs(u2 - u_full).max() < 1e-4
+
+
+def test_a_step_shortened_to_land_does_not_shrink_the_next_caller_steps_substeps():
+    """Substeps up to 2 ms, no binding error control: the caller step to 4.2 ms ends with
+    a 0.2 ms remnant; the next caller step still starts with a 2 ms substep (before, twice
+    the remnant: 0.4 ms, then 0.8 and 1.6)."""
+    tr = Transient(_bar(), hold="step", max_substep=2e-3, tol=10.0)
+    substeps = [[h for _, h, _ in tr.advance(t).history] for t in (2e-3, 4.2e-3, 8.2e-3)]
+    assert substeps[1] == pytest.approx([2e-3, 2e-4])
+    assert substeps[2] == pytest.approx([2e-3, 2e-3])
+
+
 def test_failed_step_leaves_the_state_and_drops_the_factorization():
     model = _bar()
     tr = Transient(model, hold="step", max_cutbacks=0)
