@@ -54,8 +54,9 @@ benchmarks/fast_path.py the search cut such steps to s ~ 0.02 over up to ten res
 evaluations, and the next iterate refactorized anyway (a stale tangent without the
 stiffness of a contact that had closed since). On a reused factorization an iterate
 costs a residual and a solve (no tangent), and the residual at the accepted step, when it
-was the last one evaluated, is the next iterate's. A failed solve invalidates the factorization. ``reuse = False`` is full
-Newton: the tangent assembled and factorized at every iterate.
+was the last one evaluated, is the next iterate's. A failed solve invalidates the
+factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
+every iterate.
 """
 
 from dataclasses import dataclass, field, replace
