@@ -156,9 +156,9 @@ def _line_search(line, r0, opts):
     n0 = float(np.linalg.norm(r0))
     r1 = line(1.0)
     g1 = _g(du, r1)
-    if g1 is not None and abs(g1) <= 0.5 * abs(g0):
+    if _full_step_stands(g0, g1, n0, r1):
         return 1.0
-    if g1 is not None and g1 * g0 > 0:  # still descending at s = 1
+    if g1 is not None and g1 * g0 > 0:  # still descending at s = 1, the residual grew
         s, r = 1.0, r1
         for _ in range(opts.max_ls):    # backtrack while the residual grew (a kink)
             if float(np.linalg.norm(r)) <= n0:
@@ -330,14 +330,19 @@ def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report):
     return _direction(system, r, data, dup, lin), data, False
 
 
-def _full_step_taken(line, r0, balanced):
-    """Whether the full step along a reused factorization's direction stands: admissible,
-    and the line search's test for s = 1 (|g(1)| <= |g(0)| / 2, or g(1) of the sign of
-    g(0) with ||r|| not grown; balanced: ||r|| not grown, whatever the signs)."""
-    r1 = line(1.0)
-    g1 = _g(line.du, r1)
+def _full_step_stands(g0, g1, n0, r1, balanced=False):
+    """The line search's test for s = 1, with g0 = g(0), g1 = g(1) (None: inadmissible),
+    n0 = ||r(0)||, r1 = r(1): |g1| <= |g0| / 2, or g1 of the sign of g0 with ||r1|| <= n0
+    (balanced: ||r1|| <= n0 whatever the signs)."""
     if g1 is None:
         return False
-    g0 = float(line.du @ r0)
-    kept = float(np.linalg.norm(r1)) <= float(np.linalg.norm(r0))
+    kept = float(np.linalg.norm(r1)) <= n0
     return abs(g1) <= 0.5 * abs(g0) or (kept and (balanced or g1 * g0 > 0))
+
+
+def _full_step_taken(line, r0, balanced):
+    """Whether the full step along a reused factorization's direction stands
+    (_full_step_stands at s = 1 of line)."""
+    r1 = line(1.0)
+    return _full_step_stands(float(line.du @ r0), _g(line.du, r1),
+                             float(np.linalg.norm(r0)), r1, balanced)
