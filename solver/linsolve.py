@@ -28,10 +28,22 @@ import scipy.sparse.linalg as sla
 
 from .errors import ParameterError
 
-# One MKL thread unless the user asks otherwise, set before pypardiso loads MKL: as fast
-# here on 2 cores (0.30 s against 0.53 s for a face factorization), and MKL's OpenMP
-# runtime made an FMU host (fmpy) abort at exit.
-os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+def _cpus():
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                  # not on Linux
+        return os.cpu_count() or 1
+
+
+# MKL (PARDISO) threads: one per CPU this process may run on, unless the user (or a host:
+# dask's nanny sets one thread per sweep worker) chose; set before pypardiso loads MKL.
+# On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
+# two threads against 166 s with one, case b in 28.5 s against 34.6 s (session 8, with
+# MKL_NUM_THREADS=2 and 1 back to back; docs/fast_path.md). An older measurement had one
+# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU `auto` is
+# SuperLU: MKL is not loaded there.
+os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 
 
 def _openblas_threads():

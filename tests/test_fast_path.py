@@ -182,6 +182,23 @@ def test_single_threaded_blas_restores_the_thread_count():
 
 
 @pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
+@pytest.mark.parametrize("preset", [None, "1"])
+def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
+    """PARDISO runs on every CPU the process may use (two threads were 21-23 % faster on
+    benchmarks/fast_path.py here); a value the user (or dask's nanny) set is kept."""
+    import os
+    import subprocess
+    import sys
+    env = {k: v for k, v in os.environ.items() if k != "MKL_NUM_THREADS"}
+    if preset:
+        env["MKL_NUM_THREADS"] = preset
+    code = ("import os, solver.linsolve; "
+            "print(os.environ['MKL_NUM_THREADS'], len(os.sched_getaffinity(0)))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out[0] == (preset or out[1])
+
+
 def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
     from solver.linsolve import Pardiso
     lin = Pardiso()
