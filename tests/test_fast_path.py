@@ -1,5 +1,9 @@
 """The fast full-order path (issue 10): factorization reuse, warm starts, BLAS threads."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -181,14 +185,10 @@ def test_single_threaded_blas_restores_the_thread_count():
     assert [get() for get, _ in libs] == before
 
 
-@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
 @pytest.mark.parametrize("preset", [None, "1"])
 def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
     """PARDISO runs on every CPU the process may use (two threads were 21-23 % faster on
     benchmarks/fast_path.py here); a value the user (or dask's nanny) set is kept."""
-    import os
-    import subprocess
-    import sys
     env = {k: v for k, v in os.environ.items() if k != "MKL_NUM_THREADS"}
     if preset:
         env["MKL_NUM_THREADS"] = preset
@@ -199,6 +199,7 @@ def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
     assert out[0] == (preset or out[1])
 
 
+@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
 def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
     from solver.linsolve import Pardiso
     lin = Pardiso()
