@@ -475,12 +475,16 @@ class LipContact(_Report, Term):
                 "kept": -np.ones(len(slaves), dtype=np.int64)})
         self.dropped = np.concatenate(dropped)
         self.slaves = np.concatenate([q["slaves"] for q in self.passes])
-        self.k = np.concatenate([q["k"] for q in self.passes])
         s = len(self.slaves)
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((n, 3)))
 
     def _stiffnesses(self):
-        return [q["k"] for q in self.passes] + [self.k]
+        return [q["k"] for q in self.passes]
+
+    @property
+    def k(self):
+        """(s,) the slaves' stiffnesses (N/mm), both passes, in the order of slaves."""
+        return np.concatenate(self._stiffnesses())
 
     @property
     def n_pairs(self):
