@@ -123,6 +123,25 @@ class SuperLU(_Reusable):
         return self._lu.solve(b)
 
 
+# PARDISO's parameters (1-based iparm, MKL's manual), mtype -2. iparm(1) = 1: ours, not
+# MKL's defaults (pypardiso leaves iparm(1) = 0, under which MKL ignores every other entry).
+# MKL's defaults pivot 1x1 and 2x2 (Bunch-Kaufman, iparm(21) = 1) and then refine every
+# solution twice: three solves and two products with K for each Newton direction, which
+# modified Newton pays at every iteration (a reused factorization is refined against its
+# own matrix, so the refinement buys nothing there). 1x1 diagonal pivoting refines only
+# after a perturbed pivot (iparm(8) = 0). A solve on case a's tangent (23,004 free DOF):
+# 0.011 against 0.035 s; case b's: 0.005 against 0.018 s; factorizations as fast, the
+# relative residual 2.5e-13 against 3.2e-13 (session 9, a scratch timing on tangents saved
+# from benchmarks/fast_path.py; figures of the whole gesture in docs/fast_path.md).
+IPARM = {1: 1,          # use the entries below
+         2: 2,          # fill-in reducing ordering: METIS nested dissection
+         8: 0,          # iterative refinement: two steps, only after perturbed pivots
+         10: 8,         # pivot perturbation 1e-8
+         11: 0, 13: 0,  # no scaling, no weighted matching (symmetric matrices)
+         18: -1,        # report the factor's nonzeros (iparm(18))
+         21: 0}         # 1x1 diagonal pivoting
+
+
 class Pardiso(_Reusable):
     """MKL PARDISO, real symmetric indefinite (mtype -2) on the upper triangle; the
     symbolic analysis (ordering) is done once per sparsity pattern and reused, and so is
@@ -134,10 +153,8 @@ class Pardiso(_Reusable):
     def __init__(self):
         import pypardiso
         self._p = pypardiso.PyPardisoSolver(mtype=-2)
-        # iterative refinement only after perturbed pivots (MKL's own default, iparm(8) = 0):
-        # pypardiso asks for two steps at every solve, which the reused factorizations of
-        # solver.newton pay at each iteration (same solution to 1e-12 on the face tangents)
-        self._p.set_iparm(8, 0)
+        for i, value in IPARM.items():
+            self._p.set_iparm(i, value)
         self._pattern = None
         self._U = None
         self._source = None         # (indptr, indices) of the K the gather was made for

@@ -215,6 +215,31 @@ def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
     assert np.allclose(ref.solve(b), lin.solve(b) * 3.0, atol=1e-10)
 
 
+@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
+def test_pardiso_solves_without_refinement_and_stays_exact_on_indefinite_matrices(rng):
+    """Our iparm is in force (MKL's defaults refined every solution twice: three solves per
+    Newton direction); a symmetric indefinite saddle-point matrix, which 1x1 pivoting must
+    still handle (perturbed pivots, then refinement), solves to round-off."""
+    from solver.linsolve import Pardiso
+    n, m = 60, 12
+    A = sp.random(n, n, density=0.1, random_state=rng)
+    A = sp.csr_matrix(A @ A.T + sp.identity(n))                      # SPD
+    lin = Pardiso()
+    b = rng.normal(size=n)
+    lin.refactor(A, "spd")
+    assert np.allclose(A @ lin.solve(b), b, atol=1e-10)
+    assert lin._p.iparm[6] == 0                                      # refinement steps taken
+    B = sp.random(m, n, density=0.3, random_state=rng) + sp.eye(m, n)
+    KKT = sp.bmat([[A, B.T], [B, None]], format="coo")                # zero diagonal block,
+    zeros = np.arange(n, n + m)                                       # stored (PARDISO's rule)
+    KKT = sp.csr_matrix((np.r_[KKT.data, np.zeros(m)], (np.r_[KKT.row, zeros],
+                                                        np.r_[KKT.col, zeros])))
+    c = rng.normal(size=n + m)
+    lin.refactor(KKT, "kkt")
+    x = lin.solve(c)
+    assert np.linalg.norm(KKT @ x - c) <= 1e-9 * np.linalg.norm(c)
+
+
 def test_benchmark_knobs_parse_and_reach_their_objects():
     """benchmarks/fast_path.py --set: values typed, each group reaches its objects, a
     wrong group or a missing '=' is refused."""
