@@ -50,16 +50,16 @@ def inverse3(a, out):
 
 
 @njit(cache=True)
-def principal_derivatives(I1, I2, I3, wb, wbb, w, ww):
+def principal_derivatives(I1, I2, I3, wb, wbb, w, ww, g):
     """Chain rule from (I1b, I2b, J) derivatives to (I1, I2, I3) derivatives.
 
     wb (3,), wbb (3, 3): first and second derivatives of W in (I1b, I2b, J).
-    Fills w (3,) and ww (3, 3) with derivatives in (I1, I2, I3).
+    Fills w (3,) and ww (3, 3) with derivatives in (I1, I2, I3); g (3, 3) is scratch.
     """
     t13 = I3 ** (-1.0 / 3.0)
     t23 = t13 * t13
     # d Ib_m / d I_k: rows m, columns k
-    g = np.zeros((3, 3))
+    g[:, :] = 0.0
     g[0, 0] = t13
     g[0, 2] = -I1 * t13 / (3.0 * I3)
     g[1, 1] = t23
@@ -91,13 +91,11 @@ def principal_derivatives(I1, I2, I3, wb, wbb, w, ww):
 
 
 @njit(cache=True)
-def stress_tangent(C, w, ww, need_d, S, D):
+def stress_tangent(C, w, ww, need_d, S, D, Ci, A):
     """S (3, 3) and, when need_d, D (6, 6) from the invariant derivatives w (3,),
-    ww (3, 3) at C (3, 3)."""
-    Ci = np.empty((3, 3))
+    ww (3, 3) at C (3, 3); Ci (3, 3) and A (3, 3, 3) are scratch."""
     I3 = inverse3(C, Ci)
     I1 = C[0, 0] + C[1, 1] + C[2, 2]
-    A = np.empty((3, 3, 3))
     for i in range(3):
         for j in range(3):
             d = 1.0 if i == j else 0.0

@@ -1,4 +1,9 @@
-"""Energy, stress and tangent of the Mooney-Rivlin law at one material point."""
+"""Energy, stress and tangent of the Mooney-Rivlin law at one material point.
+
+The kernels take their scratch arrays from the caller (``workspace()``, once per thread
+and block of elements): small heap allocations at every Gauss point cost as much as
+the arithmetic in numba's parallel loops.
+"""
 
 import numpy as np
 from numba import njit
@@ -8,9 +13,24 @@ from .mooney_rivlin import iso_energy, vol_energy
 
 
 @njit(cache=True)
+def workspace():
+    """Scratch of point_response_ws: (wb (3,), wbb (3, 3), w (3,), ww (3, 3), g (3, 3),
+    Ci (3, 3), A (3, 3, 3))."""
+    return (np.empty(3), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 3)),
+            np.empty((3, 3)), np.empty((3, 3, 3)))
+
+
+@njit(cache=True)
 def point_response(C, p, with_vol, need_d, S, D):
     """W at C (3, 3); fills S (3, 3) and, when need_d, D (6, 6). with_vol adds U(J) to
     the isochoric part."""
+    return point_response_ws(C, p, with_vol, need_d, S, D, workspace())
+
+
+@njit(cache=True)
+def point_response_ws(C, p, with_vol, need_d, S, D, ws):
+    """point_response with the scratch ws of workspace()."""
+    wb, wbb, w, ww, g, Ci, A = ws
     I1 = C[0, 0] + C[1, 1] + C[2, 2]
     I2 = 0.5 * (I1 * I1 - (C[0, 0] ** 2 + C[1, 1] ** 2 + C[2, 2] ** 2
                            + 2.0 * (C[0, 1] ** 2 + C[1, 2] ** 2 + C[0, 2] ** 2)))
@@ -18,18 +38,16 @@ def point_response(C, p, with_vol, need_d, S, D):
           - C[0, 1] * (C[1, 0] * C[2, 2] - C[1, 2] * C[2, 0])
           + C[0, 2] * (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]))
     t13 = I3 ** (-1.0 / 3.0)
-    wb = np.zeros(3)
-    wbb = np.zeros((3, 3))
+    wb[:] = 0.0
+    wbb[:, :] = 0.0
     W = iso_energy(I1 * t13, I2 * t13 * t13, p, wb, wbb)
     if with_vol:
         U, dU, ddU = vol_energy(np.sqrt(I3), p)
         W += U
         wb[2] = dU
         wbb[2, 2] = ddU
-    w = np.empty(3)
-    ww = np.empty((3, 3))
-    principal_derivatives(I1, I2, I3, wb, wbb, w, ww)
-    stress_tangent(C, w, ww, need_d, S, D)
+    principal_derivatives(I1, I2, I3, wb, wbb, w, ww, g)
+    stress_tangent(C, w, ww, need_d, S, D, Ci, A)
     return W
 
 
