@@ -86,6 +86,28 @@ def test_slow_convergence_refactorizes_and_converges():
     assert np.abs(u - u_full).max() < 1e-4
 
 
+def test_a_reused_factorization_is_kept_while_it_converges_at_a_paying_rate():
+    """20 x the force: the reused factorization converges at rates 0.2-0.3 per iteration,
+    which pay against a new factorization (NewtonOptions.refactor_ratio 0.7); a ratio of
+    0.1 (the former default) refactorizes there. Same solution."""
+    sysm, tg, u0 = _substep_case(20.0)
+    u, _, rep = newton(sysm, u0, tg, make_solver("auto"), NewtonOptions(reuse=True), key=2e-3)
+    tight = NewtonOptions(reuse=True, refactor_ratio=0.1)
+    u1, _, rep1 = newton(sysm, u0, tg, make_solver("auto"), tight, key=2e-3)
+    assert rep.converged and rep1.converged
+    assert rep.factorizations < rep1.factorizations
+    assert np.abs(u - u1).max() < 1e-6
+
+
+def test_reuse_refactorizes_when_its_rate_would_run_out_of_iterations():
+    """50 x the force, 12 iterations allowed: the reused factorization's rate (about 0.45)
+    would need about 20; Newton refactorizes in time and converges."""
+    sysm, tg, u0 = _substep_case(50.0)
+    opts = NewtonOptions(reuse=True, max_iter=12)
+    _, _, rep = newton(sysm, u0, tg, make_solver("auto"), opts, key=2e-3)
+    assert rep.converged and rep.iterations <= 12 and rep.factorizations >= 3
+
+
 def test_factorization_is_reused_only_for_the_same_system_and_key():
     sysm, tg, u0 = _substep_case(1.0)
     lin = make_solver("auto")
