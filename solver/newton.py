@@ -82,9 +82,10 @@ class NewtonOptions:
     # residual and a solve, a new factorization about six to seven of them (an assembly
     # with the tangent, the factorization, the line search's residuals), so a rate of 0.7
     # pays: 0.7^7 = 0.08. Where lip contact changes status between iterates a new tangent
-    # does not converge fast either. benchmarks/fast_path.py, back to back (session 9):
-    # case a 254 s at 0.7 against 278 s at 0.5 and 320 s at 0.1, case b 55.6 against
-    # 59.1 s at 0.1 (0.8: 59.3 s); the same cutbacks, outputs within 3e-6 mm.
+    # does not converge fast either. benchmarks/fast_path.py, one run after the other
+    # (session 9): case a 254 s at 0.7 against 278 s at 0.5 and 320 s at 0.1 (501, 540,
+    # 613 factorizations; the same cutbacks, outputs within 3e-6 mm); case b within the
+    # machine's drift (284 against 311 factorizations; 0.8 no better). docs/fast_path.md.
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
 
