@@ -167,8 +167,7 @@ CHUNK = 32      # bricks per parallel task (one scratch allocation each)
 @njit(cache=True, parallel=True)
 def brick_forces(u, bricks, dndX, wgp, params, form, need_k, fe, ke, energy, jmin):
     """All bricks in parallel, in blocks of CHUNK that each allocate the material point's
-    scratch once;
-    each brick writes its own rows, so there are no races.
+    scratch once; each brick writes its own rows, so there are no races.
 
     u (n, 3), bricks (m, 8), dndX (m, 8, 8, 3), wgp (m, 8), params (m, 6);
     fills fe (m, 24), ke (m, 24, 24) (when need_k), energy (m,), jmin (m,).
