@@ -2,7 +2,7 @@
 
 ``superlu``  scipy.sparse.linalg.splu (always available)
 ``pardiso``  Intel MKL PARDISO through pypardiso (x86_64 wheels on PyPI), symmetric
-``auto``     the fastest available, by benchmarks/linear_solvers.py on this project's
+``auto``     the fastest available, by benchmarks/solver_scaling.py on this project's
              matrices: pardiso where importable, else superlu.
 
 Reuse: a solver counts its factorizations and keeps a tag of what its current one was
@@ -132,7 +132,8 @@ class SuperLU(_Reusable):
 # after a perturbed pivot (iparm(8) = 0). A solve on case a's tangent (23,004 free DOF):
 # 0.011 against 0.035 s; case b's: 0.005 against 0.018 s; factorizations as fast, the
 # relative residual 2.5e-13 against 3.2e-13 (session 9, a scratch timing on tangents saved
-# from benchmarks/fast_path.py; figures of the whole gesture in docs/fast_path.md).
+# from benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
+# apart; figures of the whole gesture in docs/fast_path.md).
 IPARM = {1: 1,          # use the entries below
          2: 2,          # fill-in reducing ordering: METIS nested dissection
          8: 0,          # iterative refinement: two steps, only after perturbed pivots
