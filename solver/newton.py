@@ -321,13 +321,12 @@ def _newton(system, u0, targets, lin, opts, tag):
 
 def _slow(rn, prev, tol, it, opts):
     """Whether the residual rn, after prev at the iteration before, calls for a new
-    factorization: it fell by less than refactor_ratio, or at that rate the force
-    tolerance tol would not be met within the max_iter - 2 iterations left."""
-    if rn > opts.refactor_ratio * prev:
+    factorization: it fell by less than refactor_ratio (or not at all), or at that rate
+    the force tolerance tol (< rn: not met yet) would not be met within the max_iter - 2
+    iterations left."""
+    if rn > opts.refactor_ratio * prev or rn >= prev:
         return True
-    if rn <= 0.0 or tol >= rn:
-        return False
-    needed = np.log(tol / rn) / np.log(rn / prev)
+    needed = np.log(tol / rn) / np.log(rn / prev)          # both logarithms negative
     return it + needed > opts.max_iter - 2
 
 
