@@ -202,7 +202,9 @@ class Pardiso(_Reusable):
         self._phase(22, zero)
 
     def solve(self, b):
-        return self._phase(33, np.asarray(b, dtype=np.float64))
+        """x (n,) or (n, k) for b (n,) or (n, k) (k right-hand sides in one call)."""
+        b = np.asarray(b, dtype=np.float64)
+        return self._phase(33, np.asfortranarray(b) if b.ndim == 2 else b)
 
     def release(self):
         """Free the factorization's memory (phase 0; MKL frees the rest at exit, and

@@ -64,6 +64,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .contact_update import ContactUpdate
 from .linsolve import single_threaded_blas
 from .terms.base import InvertedElement
 
@@ -88,6 +89,9 @@ class NewtonOptions:
     # machine's drift (284 against 311 factorizations; 0.8 no better). docs/fast_path.md.
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
+    # Correct each direction for the contact status the step predicts, by low-rank updates
+    # of the factorization (solver.contact_update).
+    contact_update: bool = True
 
 
 @dataclass
@@ -245,15 +249,18 @@ def _evaluate(system, u, need_k):
         return None, str(exc)
 
 
-def _factorize(system, lin, data, tag, report):
+def _factorize(system, lin, data, tag, report, u, contact):
     lin.refactor(system.reduction.matrix(data), tag)
     report.factorizations += 1
+    if contact:
+        contact.mark(lin, u)
 
 
 def _newton(system, u0, targets, lin, opts, tag):
     u = u0.copy()
     prescribed = system.prescribed
     report = NewtonReport(False, 0)
+    contact = ContactUpdate(system) if opts.contact_update else None
     step_size = np.inf                      # of the last update (none yet)
     r, data = _evaluate(system, u, not _reusable(lin, opts, tag))
     for it in range(opts.max_iter + 1):
@@ -287,12 +294,12 @@ def _newton(system, u0, targets, lin, opts, tag):
                                                  opts.rtol * ref + opts.atol, it, opts)
         try:
             du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, slow,
-                                       balanced, report)
+                                       balanced, report, contact)
             line = _Line(system, u, du)
             if reused and not _full_step_taken(line, r, balanced):
                 report.stale_steps += 1
                 du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, True,
-                                           balanced, report)
+                                           balanced, report, contact)
                 line = _Line(system, u, du)
         except RuntimeError as exc:           # singular factorization
             report.reason = f"linear solver failed: {exc}"
@@ -335,21 +342,25 @@ def _reusable(lin, opts, tag):
     return opts.reuse and lin.tag is not None and lin.tag[0] is tag[0] and lin.tag[1] == tag[1]
 
 
-def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report):
+def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, contact):
     """(du, data, reused): Newton's update at u, on a reused factorization where that is
     allowed (module docstring; balanced: the force criterion holds, so that r is at the
     level of rounding and du . r may have any sign), else on a new one of the tangent at u
-    (assembled if data is None: the residual is then evaluated again with it)."""
+    (assembled if data is None: the residual is then evaluated again with it); corrected
+    for the predicted contact status where contact (a ContactUpdate) is given."""
+    fix = contact and not np.any(dup)
     if _reusable(lin, opts, tag) and not slow and not np.any(dup):
         du = _direction(system, r, None, dup, lin)
+        du = contact.correct(lin, u, du) if fix else du
         if np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
             return du, data, True
     if data is None:
         r2, data = _evaluate(system, u, True)
         if r2 is None:
             raise RuntimeError(data)
-    _factorize(system, lin, data, tag, report)
-    return _direction(system, r, data, dup, lin), data, False
+    _factorize(system, lin, data, tag, report, u, contact)
+    du = _direction(system, r, data, dup, lin)
+    return (contact.correct(lin, u, du) if fix else du), data, False
 
 
 def _full_step_stands(g0, g1, n0, r1, balanced=False):

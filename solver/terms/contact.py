@@ -126,6 +126,7 @@ from scipy.spatial import cKDTree
 from ..errors import ParameterError
 from ..kernels.contact import (nearest, pair_distances, rigid_contact, signed_gaps,
                                surface_contact, surface_normals)
+from ..kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from .base import Term
 
 PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
@@ -421,6 +422,19 @@ class RigidContact(_Report, Term):
         nodal[self.slaves] = -self._fe
         self._report(gap, force, nodal)
 
+    def linear_gaps(self, u):
+        """The slaves' linearized penetrations at displacements u (n, 3) (solver.
+        contact_update): (dofs (s, 3), v (s, 3), k (s,), p (s,)), p nan where no law
+        applies; None with a smoothed law."""
+        if self.smoothing > 0:
+            return None
+        x = self.mesh.nodes[self.slaves] + u[self.slaves]
+        ptr, cand = self._candidates(x)
+        p, v = np.empty(len(x)), np.empty((len(x), 3))
+        rigid_linear_gaps(x, self.vertices, self.tris, ptr, cand, *self.normals.args(),
+                          self.search_radius, p, v)
+        return 3 * self.slaves[:, None] + np.arange(3), v, self.k, p
+
 
 class LipContact(_Report, Term):
     """Frictionless two-pass penalty contact between the upper and the lower lip.
@@ -551,6 +565,24 @@ class LipContact(_Report, Term):
             gaps.append(gap)
             forces.append(force)
         self._report(np.concatenate(gaps), np.concatenate(forces), nodal)
+
+    def linear_gaps(self, u):
+        """As RigidContact.linear_gaps, both passes (dofs (s, 12) over the slave and its
+        nearest candidate triangle's nodes, v (s, 12))."""
+        if self.smoothing > 0:
+            return None
+        x = self.mesh.nodes + u
+        out = []
+        for q in self.passes:
+            nrm = self.normals[q["master"]].update(x)
+            s = len(q["slaves"])
+            p, v, pair = np.empty(s), np.empty((s, 12)), np.empty(s, dtype=np.int64)
+            surface_linear_gaps(x, q["slaves"], nrm.tris, q["ptr"], q["pair_tri"], *nrm.args(),
+                                self.depth, q["pair_free"], p, v, pair)
+            nodes = q["nodes"][np.maximum(pair, 0)]
+            out.append((3 * np.repeat(nodes, 3, axis=1) + np.tile(np.arange(3), 4), v,
+                        q["k"], p))
+        return tuple(np.concatenate(a) for a in zip(*out))
 
 
 def joined_surfaces(surfaces, tol=1e-9):

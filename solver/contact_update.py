@@ -1,0 +1,127 @@
+r"""Contact status changes as low-rank updates of a factorized tangent (Newton's
+``NewtonOptions.contact_update``; issue 10's incremental contact active set).
+
+On the pure penalty law a slave in contact adds k v v^T to the tangent, v = grad p its
+penetration's gradient (solver.kernels.contact_linear), so the tangent of one contact
+status differs from that of another by a sum of rank-one terms. A Newton direction
+du = -A^-1 r on a factorized A (made at an iterate whose active slaves were S_A) is
+corrected for the status that the step itself predicts: slave i is active after the step
+when its linearized penetration p_i + v_i . du > 0, and its force is then k_i (p_i + v_i .
+du) v_i, else 0. With the slaves whose predicted status differs from S_A as the columns of
+U (v_i on the free DOFs), D = diag(+-k_i) (+ where a slave comes into contact, - where it
+leaves) and p their current penetrations, the step solves (A + U D U^T) du = b - U D p
+(b = -r: an added slave's force k_i p_i v_i joins the residual, a removed one's leaves it):
+
+    (A + U D U^T)^-1 c = y - Z (D^-1 + U^T Z)^-1 U^T y,    y = A^-1 c,   Z = A^-1 U,
+
+with y = du_0 - Z D p (du_0 = A^-1 b, the uncorrected step): Sherman-Morrison-Woodbury,
+one solve with len(U) right-hand sides on the factorization.
+The prediction is repeated with the corrected step until the set stops changing (at most
+``rounds`` times). Without it a slave that is free at the iterate but pressed by the step
+meets no contact stiffness, is carried deep into the master, and the line search cuts the
+step short at the first new contact. The residual and the convergence criteria are
+unchanged: only the direction is, so the solution is the same to the Newton tolerance.
+For a removed slave D^-1 + v^T A^-1 v = -1 / (k (1 + k c)) (c = v^T K^-1 v over the rest of
+the tangent): the update stays well conditioned, and A + U D U^T positive definite where
+the rest of the tangent is. Smoothed laws (smoothing > 0) have no jump in stiffness and
+take no update.
+"""
+
+import numpy as np
+
+
+class ContactUpdate:
+    """The contact terms of a system (those with ``linear_gaps``) and the status that the
+    current factorization of a linear solver was made with."""
+
+    def __init__(self, system, rounds=4):
+        self.terms = [t for t in system.terms if callable(getattr(t, "linear_gaps", None))]
+        self.free = system.free
+        self.index = -np.ones(system.ndof, dtype=np.int64)        # DOF -> free DOF or -1
+        self.index[system.free] = np.arange(len(system.free))
+        self.rounds = rounds
+        self.corrections = 0          # slaves corrected, summed over directions
+        self.changed = []             # of the last direction: [(term, slave, active)]
+        self.settled = False          # whether its predicted status reproduced itself
+
+    def __bool__(self):
+        return bool(self.terms)
+
+    def _gaps(self, u):
+        """[(dofs (s, m), v (s, m), k (s,), p (s,)) or None] of each term at u (ndof,)."""
+        return [t.linear_gaps(u.reshape(-1, 3)) for t in self.terms]
+
+    def mark(self, lin, u):
+        """Record on lin the active slaves at u, where its new factorization was made, and
+        start its cache of solved columns."""
+        lin.contact_status = (lin.factorizations,
+                              [None if g is None else g[3] >= 0 for g in self._gaps(u)], {})
+
+    def _status(self, lin):
+        """(base masks, column cache) of lin's current factorization, or None."""
+        status = getattr(lin, "contact_status", None)
+        return status[1:] if status is not None and status[0] == lin.factorizations else None
+
+    def correct(self, lin, u, du):
+        """du (ndof,) corrected for the predicted status (the module docstring), or du
+        itself where lin's factorization has no recorded status."""
+        status = self._status(lin)
+        if status is None:
+            return du
+        base, cache = status
+        gaps = self._gaps(u)
+        du0, out, chosen = du[self.free], du, None
+        self.settled = False
+        for rnd in range(self.rounds + 1):
+            sel = []                    # (key, d_i, p_i, dofs, v) of the changed slaves
+            for t, (g, act) in enumerate(zip(gaps, base)):
+                if g is None:
+                    continue
+                dofs, v, k, p = g
+                want = p + (v * out[dofs]).sum(axis=1) > 0.0
+                for i in np.flatnonzero(np.isfinite(p) & (want != act)):
+                    sel.append(((t, i, bool(want[i])), k[i] if want[i] else -k[i], p[i],
+                                dofs[i], v[i]))
+            keys = [c[0] for c in sel]
+            if keys == chosen:
+                self.settled = True
+                break
+            if rnd == self.rounds:
+                break                   # out solves the model of the last set tried
+            chosen = keys
+            out = du.copy()
+            if sel:
+                try:
+                    out[self.free] = self._woodbury(lin, cache, du0, sel)
+                except np.linalg.LinAlgError:   # a singular model: no correction
+                    chosen, out = [], du
+                    break
+        self.changed = chosen or []
+        self.corrections += len(self.changed)
+        return out
+
+    def _woodbury(self, lin, cache, du0, sel):
+        """(A + U D U^T)^-1 (b - U D p) on the free DOFs, b = A du0; the columns A^-1 u_i
+        are solved once per factorization (cache: key -> (free DOFs, v_i there, A^-1 u_i);
+        U keeps the v_i of that first solve: it is part of the iteration matrix)."""
+        nf = len(self.free)
+        new = [c for c in sel if c[0] not in cache]
+        if new:
+            U = np.zeros((nf, len(new)), order="F")
+            rows = []
+            for j, c in enumerate(new):
+                f = self.index[c[3]]
+                keep = f >= 0
+                rows.append((f[keep], c[4][keep]))
+                U[f[keep], j] = c[4][keep]
+            Z = np.asarray(lin.solve(U)).reshape(nf, len(new))
+            for j, c in enumerate(new):
+                cache[c[0]] = (*rows[j], Z[:, j].copy())
+        cols = [cache[c[0]] for c in sel]
+        Z = np.column_stack([c[2] for c in cols])                      # (nf, m)
+        d = np.array([c[1] for c in sel])
+        p = np.array([c[2] for c in sel])
+        S = np.diag(1.0 / d) + np.array([(v[:, None] * Z[f]).sum(axis=0) for f, v, _ in cols])
+        y = du0 - Z @ (d * p)
+        uty = np.array([(v * y[f]).sum() for f, v, _ in cols])
+        return y - Z @ np.linalg.solve(S, uty)
