@@ -7,15 +7,18 @@ status differs from that of another by a sum of rank-one terms. A Newton directi
 du = -A^-1 r on a factorized A (made at an iterate whose active slaves were S_A) is
 corrected for the status that the step itself predicts: slave i is active after the step
 when its linearized penetration p_i + v_i . du > 0, and its force is then k_i (p_i + v_i .
-du) v_i, else 0. With the slaves whose predicted status differs from S_A as the columns of
-U (v_i on the free DOFs), D = diag(+-k_i) (+ where a slave comes into contact, - where it
-leaves) and p their current penetrations, the step solves (A + U D U^T) du = b - U D p
-(b = -r: an added slave's force k_i p_i v_i joins the residual, a removed one's leaves it):
+du) v_i, else 0. The slaves whose predicted status differs from S_A are the columns of U
+(v_i on the free DOFs), with D = diag(+-k_i) (+ where a slave comes into contact, - where
+it leaves); the residual r holds the forces k_i p_i v_i of the slaves active at the
+iterate (p_i >= 0), so those whose predicted status differs from that one (the set R; on a
+new factorization the same slaves as U's, on a reused one not) add or drop theirs:
 
+    (A + U D U^T) du = c,    c = b - sum_R (+-k_i) p_i u_i,    b = -r,
     (A + U D U^T)^-1 c = y - Z (D^-1 + U^T Z)^-1 U^T y,    y = A^-1 c,   Z = A^-1 U,
 
-with y = du_0 - Z D p (du_0 = A^-1 b, the uncorrected step): Sherman-Morrison-Woodbury,
-one solve with len(U) right-hand sides on the factorization.
+with y = du_0 - sum_R (+-k_i) p_i A^-1 u_i (du_0 = A^-1 b, the uncorrected step):
+Sherman-Morrison-Woodbury, one solve with as many right-hand sides as new slaves (the
+solved columns A^-1 u_i are kept for the factorization's later directions).
 The prediction is repeated with the corrected step until the set stops changing (at most
 ``rounds`` times). Without it a slave that is free at the iterate but pressed by the step
 meets no contact stiffness, is carried deep into the master, and the line search cuts the
@@ -73,39 +76,42 @@ class ContactUpdate:
         du0, out, chosen = du[self.free], du, None
         self.settled = False
         for rnd in range(self.rounds + 1):
-            sel = []                    # (key, d_i, p_i, dofs, v) of the changed slaves
+            # the matrix: predicted status against the factorization's; the right-hand
+            # side: against the status at u, whose forces r holds
+            mat, rhs = [], []           # ((term, slave), d_i, p_i, dofs, v)
             for t, (g, act) in enumerate(zip(gaps, base)):
                 if g is None:
                     continue
                 dofs, v, k, p = g
                 want = p + (v * out[dofs]).sum(axis=1) > 0.0
-                for i in np.flatnonzero(np.isfinite(p) & (want != act)):
-                    sel.append(((t, i, bool(want[i])), k[i] if want[i] else -k[i], p[i],
-                                dofs[i], v[i]))
-            keys = [c[0] for c in sel]
+                ok = np.isfinite(p)
+                for group, now in ((mat, act), (rhs, p >= 0.0)):
+                    for i in np.flatnonzero(ok & (want != now)):
+                        group.append(((t, i), k[i] if want[i] else -k[i], p[i], dofs[i], v[i]))
+            keys = ([(c[0], c[1] > 0) for c in mat], [(c[0], c[1] > 0) for c in rhs])
             if keys == chosen:
                 self.settled = True
                 break
             if rnd == self.rounds:
-                break                   # out solves the model of the last set tried
+                break                   # out solves the model of the last sets tried
             chosen = keys
             out = du.copy()
-            if sel:
+            if mat or rhs:
                 try:
-                    out[self.free] = self._woodbury(lin, cache, du0, sel)
+                    out[self.free] = self._woodbury(lin, cache, du0, mat, rhs)
                 except np.linalg.LinAlgError:   # a singular model: no correction
-                    chosen, out = [], du
+                    chosen, out = None, du
                     break
-        self.changed = chosen or []
+        self.changed = chosen[0] if chosen else []
         self.corrections += len(self.changed)
         return out
 
-    def _woodbury(self, lin, cache, du0, sel):
-        """(A + U D U^T)^-1 (b - U D p) on the free DOFs, b = A du0; the columns A^-1 u_i
-        are solved once per factorization (cache: key -> (free DOFs, v_i there, A^-1 u_i);
-        U keeps the v_i of that first solve: it is part of the iteration matrix)."""
+    def _columns(self, lin, cache, sel):
+        """[(free DOFs, v_i there, A^-1 u_i)] of the slaves sel, solved once per
+        factorization (cache: (term, slave) -> that triple; U keeps the v_i of that first
+        solve: it is part of the iteration matrix)."""
         nf = len(self.free)
-        new = [c for c in sel if c[0] not in cache]
+        new = list({c[0]: c for c in sel if c[0] not in cache}.values())
         if new:
             U = np.zeros((nf, len(new)), order="F")
             rows = []
@@ -117,11 +123,19 @@ class ContactUpdate:
             Z = np.asarray(lin.solve(U)).reshape(nf, len(new))
             for j, c in enumerate(new):
                 cache[c[0]] = (*rows[j], Z[:, j].copy())
-        cols = [cache[c[0]] for c in sel]
+        return [cache[c[0]] for c in sel]
+
+    def _woodbury(self, lin, cache, du0, mat, rhs):
+        """(A + U D U^T)^-1 (b - sum_rhs d_i p_i u_i) on the free DOFs (U, D: the slaves
+        mat), b = A du0."""
+        y = du0.copy()
+        for (_, _, z), c in zip(self._columns(lin, cache, rhs), rhs):
+            y -= (c[1] * c[2]) * z
+        if not mat:
+            return y
+        cols = self._columns(lin, cache, mat)
         Z = np.column_stack([c[2] for c in cols])                      # (nf, m)
-        d = np.array([c[1] for c in sel])
-        p = np.array([c[2] for c in sel])
+        d = np.array([c[1] for c in mat])
         S = np.diag(1.0 / d) + np.array([(v[:, None] * Z[f]).sum(axis=0) for f, v, _ in cols])
-        y = du0 - Z @ (d * p)
         uty = np.array([(v * y[f]).sum() for f, v, _ in cols])
         return y - Z @ np.linalg.solve(S, uty)

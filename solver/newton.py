@@ -58,6 +58,13 @@ costs a residual and a solve (no tangent), and the residual at the accepted step
 was the last one evaluated, is the next iterate's. A failed solve invalidates the
 factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
 every iterate.
+
+Contact status (``contact_update``, default on): every direction, on a new or a reused
+factorization, is corrected for the contact status that the step predicts, by low-rank
+updates of the factorization (solver.contact_update): a slave that the step would carry
+into a master meets its contact stiffness in this direction already instead of at the
+next iterate, after a line search cut short at its kink. The residual, the line search and
+the convergence criteria are unchanged.
 """
 
 from dataclasses import dataclass, field, replace
