@@ -118,6 +118,8 @@ After each assembly both terms hold: gap (s,) signed gaps of their slaves (inf: 
 candidate or a free boundary), force (s,) the slaves' normal contact forces (N), n_active,
 max_penetration (mm, >= 0), total_force (N, the sum of force) and nodal_force (n, 3): the
 contact force on every mesh node (on the slaves and, for LipContact, on the master nodes).
+``linear_gaps(u)`` gives each slave's penetration and its gradient over the slave and
+master nodes (Newton's contact status prediction, solver.contact_update).
 """
 
 import numpy as np
