@@ -44,7 +44,7 @@ class ContactUpdate:
         self.index[system.free] = np.arange(len(system.free))
         self.rounds = rounds
         self.corrections = 0          # slaves corrected, summed over directions
-        self.changed = []             # of the last direction: [(term, slave, active)]
+        self.changed = []             # of the last direction: [((term, slave), active)]
         self.settled = False          # whether its predicted status reproduced itself
 
     def __bool__(self):

@@ -59,7 +59,8 @@ was the last one evaluated, is the next iterate's. A failed solve invalidates th
 factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
 every iterate.
 
-Contact status (``contact_update``, default on): every direction, on a new or a reused
+Contact status (``contact_update``; the default None: in calls with a key, i.e. the
+substeps of solver.transient, as reuse): every direction, on a new or a reused
 factorization, is corrected for the contact status that the step predicts, by low-rank
 updates of the factorization (solver.contact_update): a slave that the step would carry
 into a master meets its contact stiffness in this direction already instead of at the
@@ -97,8 +98,11 @@ class NewtonOptions:
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
     # Correct each direction for the contact status the step predicts, by low-rank updates
-    # of the factorization (solver.contact_update).
-    contact_update: bool = True
+    # of the factorization (solver.contact_update); None: where the caller gives a key (the
+    # substeps of solver.transient), as reuse. Static solves keep the plain direction: on
+    # the reference face's static OOP (tests/test_muscle_actions.py) the update stalled
+    # at lam = 0.48.
+    contact_update: bool | None = None
 
 
 @dataclass
@@ -240,6 +244,8 @@ def newton(system, u0, targets, lin, opts, key=None):
     with single_threaded_blas():
         if opts.reuse is None:
             opts = replace(opts, reuse=key is not None)
+        if opts.contact_update is None:
+            opts = replace(opts, contact_update=key is not None)
         u, r, report = _newton(system, u0, targets, lin, opts, (system.reduction, key))
     if u is None:
         lin.invalidate()

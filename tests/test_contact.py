@@ -404,6 +404,7 @@ def _teeth_terms(anatomy, distance=3.0):
             for name, surface in anatomy.rigid_surfaces.items()]
 
 
+@pytest.mark.slow                   # 55 s on a slow day (session 10): out of the default suite
 def test_face_lips_on_teeth_under_oop(face_anatomy):
     free = solver.FaceModel(face_anatomy)
     free.set_activations({"OOP": 0.5})

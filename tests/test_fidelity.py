@@ -234,6 +234,7 @@ def test_a_failing_task_reports_its_error_and_the_sweep_goes_on(sweep):
     assert good["error"] == "" and good["ndof"] > 0
 
 
+@pytest.mark.slow                   # 66 s on a slow day (session 10): out of the default suite
 def test_quick_level_study_error_falls_as_the_level_rises(sweep):
     """The check of `accuracy_vs_time.py --quick`: its level study (coarse and medium
     against paper at the default tolerances) over its duration."""
