@@ -36,7 +36,7 @@ it installs; the FMU takes SuperLU). --md FILE writes the table as markdown too.
 Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
 every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
 fixed_step, predictor), ``newton.X`` a field of solver.newton.NewtonOptions (rtol, utol,
-refactor_ratio), ``contact.X`` an attribute of each contact term (smoothing, penalty),
+refactor_ratio, contact_update), ``contact.X`` an attribute of each contact term (smoothing, penalty),
 ``damping.X`` of the damping term (refresh); ``--contact both|teeth|lips|none`` the
 contact terms built. The table then gains the column "set". ``--records FILE`` saves
 the recorded outputs (JSON, per case and path); ``--against FILE`` adds the columns
