@@ -46,6 +46,7 @@ class ContactUpdate:
         self.corrections = 0          # slaves corrected, summed over directions
         self.changed = []             # of the last direction: [((term, slave), active)]
         self.settled = False          # whether its predicted status reproduced itself
+        self._marked = None           # (u, gaps at u) of the last mark
 
     def __bool__(self):
         return bool(self.terms)
@@ -56,9 +57,11 @@ class ContactUpdate:
 
     def mark(self, lin, u):
         """Record on lin the active slaves at u, where its new factorization was made, and
-        start its cache of solved columns."""
+        start its cache of solved columns (the gaps at u are kept for the direction that
+        follows at the same u)."""
+        self._marked = (u, self._gaps(u))
         lin.contact_status = (lin.factorizations,
-                              [None if g is None else g[3] >= 0 for g in self._gaps(u)], {})
+                              [None if g is None else g[3] >= 0 for g in self._marked[1]], {})
 
     def _status(self, lin):
         """(base masks, column cache) of lin's current factorization, or None."""
@@ -72,7 +75,8 @@ class ContactUpdate:
         if status is None:
             return du
         base, cache = status
-        gaps = self._gaps(u)
+        marked = self._marked
+        gaps = marked[1] if marked is not None and marked[0] is u else self._gaps(u)
         du0, out, chosen = du[self.free], du, None
         self.settled = False
         for rnd in range(self.rounds + 1):
@@ -128,12 +132,13 @@ class ContactUpdate:
     def _woodbury(self, lin, cache, du0, mat, rhs):
         """(A + U D U^T)^-1 (b - sum_rhs d_i p_i u_i) on the free DOFs (U, D: the slaves
         mat), b = A du0."""
+        cols = self._columns(lin, cache, rhs + mat)          # one solve for the new ones
         y = du0.copy()
-        for (_, _, z), c in zip(self._columns(lin, cache, rhs), rhs):
+        for (_, _, z), c in zip(cols, rhs):
             y -= (c[1] * c[2]) * z
         if not mat:
             return y
-        cols = self._columns(lin, cache, mat)
+        cols = cols[len(rhs):]
         Z = np.column_stack([c[2] for c in cols])                      # (nf, m)
         d = np.array([c[1] for c in mat])
         S = np.diag(1.0 / d) + np.array([(v[:, None] * Z[f]).sum(axis=0) for f, v, _ in cols])

@@ -127,6 +127,18 @@ def test_corrected_direction_solves_the_model_of_its_own_predicted_status(rng, r
     np.testing.assert_array_equal(out[:3], 0.0)
 
 
+def test_a_singular_model_leaves_the_direction_alone():
+    # the slave carries all the stiffness of DOF 0: dropping it leaves nothing there
+    term = _Slaves(np.array([[0, 1, 2]]), np.array([[1.0, 0.0, 0.0]]), np.array([2.0]),
+                   np.array([0.1]))
+    cu = ContactUpdate(_System([term], 3, np.arange(3)))
+    lin = make_solver("superlu")
+    lin.refactor(sp.diags([2.0, 1.0, 1.0], format="csr"), "tag")
+    cu.mark(lin, np.zeros(3))
+    du = np.array([-0.5, 0.0, 0.0])                   # pulled out: p + v . du < 0
+    assert cu.correct(lin, np.zeros(3), du) is du and cu.changed == []
+
+
 def test_no_recorded_status_leaves_the_direction_alone(rng):
     system = _System([_Slaves(np.array([[0, 1, 2]]), np.ones((1, 3)), np.ones(1),
                               np.array([-0.1]))], 3, np.arange(3))
