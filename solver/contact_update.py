@@ -8,7 +8,8 @@ du = -A^-1 r on a factorized A (made at an iterate whose active slaves were S_A)
 corrected for the status that the step itself predicts: slave i is active after the step
 when its linearized penetration p_i + v_i . du > 0, and its force is then k_i (p_i + v_i .
 du) v_i, else 0. The slaves whose predicted status differs from S_A are the columns of U
-(v_i on the free DOFs), with D = diag(+-k_i) (+ where a slave comes into contact, - where
+(v_i on the free DOFs; a slave that leaves with the v_i of the iterate where A was made,
+whose stiffness A holds), with D = diag(+-k_i) (+ where a slave comes into contact, - where
 it leaves); the residual r holds the forces k_i p_i v_i of the slaves active at the
 iterate (p_i >= 0), so those whose predicted status differs from that one (the set R; on a
 new factorization the same slaves as U's, on a reused one not) add or drop theirs:
@@ -56,15 +57,18 @@ class ContactUpdate:
         return [t.linear_gaps(u.reshape(-1, 3)) for t in self.terms]
 
     def mark(self, lin, u):
-        """Record on lin the active slaves at u, where its new factorization was made, and
-        start its cache of solved columns (the gaps at u are kept for the direction that
-        follows at the same u)."""
+        """Record on lin the active slaves at u, where its new factorization was made, with
+        their gradients (the stiffness k v v^T that the factorization holds), and start its
+        cache of solved columns (the gaps at u are kept for the direction that follows at
+        the same u)."""
         self._marked = (u, self._gaps(u))
         lin.contact_status = (lin.factorizations,
-                              [None if g is None else g[3] >= 0 for g in self._marked[1]], {})
+                              [None if g is None else g[3] >= 0 for g in self._marked[1]], {},
+                              self._marked[1])
 
     def _status(self, lin):
-        """(base masks, column cache) of lin's current factorization, or None."""
+        """(base masks, column cache, gaps at the mark) of lin's current factorization, or
+        None."""
         status = getattr(lin, "contact_status", None)
         return status[1:] if status is not None and status[0] == lin.factorizations else None
 
@@ -74,24 +78,29 @@ class ContactUpdate:
         status = self._status(lin)
         if status is None:
             return du
-        base, cache = status
+        base, cache, at_mark = status
         marked = self._marked
         gaps = marked[1] if marked is not None and marked[0] is u else self._gaps(u)
         du0, out, chosen = du[self.free], du, None
         self.settled = False
         for rnd in range(self.rounds + 1):
-            # the matrix: predicted status against the factorization's; the right-hand
-            # side: against the status at u, whose forces r holds
-            mat, rhs = [], []           # ((term, slave), d_i, p_i, dofs, v)
-            for t, (g, act) in enumerate(zip(gaps, base)):
+            # the matrix: predicted status against the factorization's (a slave that it
+            # holds leaves with the gradient it was factorized with); the right-hand side:
+            # against the status at u, whose forces r holds. Entries ((term, slave, which
+            # gradient: 0 the mark's, 1 u's), d_i, p_i, dofs, v)
+            mat, rhs = [], []
+            for t, (g, act, g0) in enumerate(zip(gaps, base, at_mark)):
                 if g is None:
                     continue
                 dofs, v, k, p = g
                 want = p + (v * out[dofs]).sum(axis=1) > 0.0
                 ok = np.isfinite(p)
-                for group, now in ((mat, act), (rhs, p >= 0.0)):
-                    for i in np.flatnonzero(ok & (want != now)):
-                        group.append(((t, i), k[i] if want[i] else -k[i], p[i], dofs[i], v[i]))
+                for i in np.flatnonzero(ok & act & ~want):
+                    mat.append(((t, i, 0), -k[i], p[i], g0[0][i], g0[1][i]))
+                for i in np.flatnonzero(ok & want & ~act):
+                    mat.append(((t, i, 1), k[i], p[i], dofs[i], v[i]))
+                for i in np.flatnonzero(ok & (want != (p >= 0.0))):
+                    rhs.append(((t, i, 1), k[i] if want[i] else -k[i], p[i], dofs[i], v[i]))
             keys = ([(c[0], c[1] > 0) for c in mat], [(c[0], c[1] > 0) for c in rhs])
             if keys == chosen:
                 self.settled = True
@@ -112,8 +121,8 @@ class ContactUpdate:
 
     def _columns(self, lin, cache, sel):
         """[(free DOFs, v_i there, A^-1 u_i)] of the slaves sel, solved once per
-        factorization (cache: (term, slave) -> that triple; U keeps the v_i of that first
-        solve: it is part of the iteration matrix)."""
+        factorization (cache: (term, slave, which gradient) -> that triple; U keeps the v_i of
+        that first solve: it is part of the iteration matrix)."""
         nf = len(self.free)
         new = list({c[0]: c for c in sel if c[0] not in cache}.values())
         if new:

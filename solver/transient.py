@@ -50,7 +50,13 @@ only the start of the iteration, not the converged u_{n+1} (to the Newton tolera
 (benchmarks/fast_path.py, 0.02 s: 103 against 86), hence the default.
 Each caller step starts with a new factorization of the tangent (Newton reuses it over
 the substeps, solver.newton), so that a step repeated from the same state (an FMU
-rollback) repeats exactly.
+rollback) repeats exactly. Newton's key, what the tangent depends on besides u, is the
+substep size to 10 significant digits (the substep that lands on t1, t1 - t, is a few ulps
+off the split's size) and the damping matrix's generation (solver.terms.inertia: K_n is
+rebuilt on each substep's start state by default, and beta K_n / h is the tangent's
+largest part, so a factorization then serves one substep; on the lip gesture of
+benchmarks/fast_path.py one made on the previous substep, 0.2 mm away, left 40 % of the
+residual in its linear model, and its step was dropped: a scratch diagnosis, session 11).
 """
 
 from dataclasses import dataclass, field
@@ -161,9 +167,10 @@ class Transient:
             term.prepare(h, u_n.reshape(-1, 3), v_n.reshape(-1, 3))
         lin = self.model.linear_solver
         u0 = self._predict(u_n, v_n, h, prev)
-        u, _, rep = newton(sysm, u0, targets, lin, opts, key=h)
+        key = (float(f"{h:.9e}"), self.damping.generation if self.damping else 0)
+        u, _, rep = newton(sysm, u0, targets, lin, opts, key=key)
         if u is None and u0 is not u_n:
-            u, _, rep2 = newton(sysm, u_n, targets, lin, opts, key=h)
+            u, _, rep2 = newton(sysm, u_n, targets, lin, opts, key=key)
             rep2.iterations += rep.iterations
             rep2.factorizations += rep.factorizations
             rep = rep2

@@ -86,10 +86,10 @@ def test_corrected_direction_solves_the_model_of_its_own_predicted_status(rng, r
     index = -np.ones(n + 3, dtype=int)
     index[free] = np.arange(n)
 
-    def column(i):
+    def column(i, vec=v):
         ui = np.zeros(n)
         f = index[dofs[i]]
-        ui[f[f >= 0]] = v[i][f >= 0]
+        ui[f[f >= 0]] = vec[i][f >= 0]
         return ui
 
     A = A.toarray()
@@ -98,31 +98,39 @@ def test_corrected_direction_solves_the_model_of_its_own_predicted_status(rng, r
     lin = make_solver("superlu")
     lin.refactor(sp.csr_matrix(A), "tag")
     cu.mark(lin, np.zeros(n + 3))
-    # a later iterate on the same factorization: slave 2 came in, slave 4 left
-    p = p_mark + (np.array([0.0, 0.0, 0.003, 0.0, -0.008, 0.0]) if reused else 0.0)
-    term.data = (dofs, v, k, p)
+    # a later iterate on the same factorization: slave 2 came in, slave 4 left, and every
+    # gradient turned (a slave that leaves must take out the stiffness A holds: its
+    # gradient at the mark, not the one now)
+    p, v_now = p_mark, v
+    if reused:
+        p = p_mark + np.array([0.0, 0.0, 0.003, 0.0, -0.008, 0.0])
+        v_now = v + 0.3 * rng.standard_normal((s, 3))
+        v_now /= np.linalg.norm(v_now, axis=1)[:, None]
+    term.data = (dofs, v_now, k, p)
     # a residual with the forces of the active slaves, pulling the first two out and
     # pushing the third and fourth in
     r = np.zeros(n + 3)
     for i in np.flatnonzero(p >= 0):
-        r[dofs[i]] += k[i] * p[i] * v[i]
+        r[dofs[i]] += k[i] * p[i] * v_now[i]
     for i, sign in ((0, 1.0), (1, 1.0), (2, -1.0), (3, -1.0)):
-        r[dofs[i]] += sign * 2.0 * v[i]
+        r[dofs[i]] += sign * 2.0 * v_now[i]
     du = np.zeros(n + 3)
     du[free] = lin.solve(-r[free])
     out = cu.correct(lin, np.zeros(n + 3), du)
     assert cu.settled and cu.corrections > 0
-    want = p + (v * out[dofs]).sum(axis=1) > 0
+    want = p + (v_now * out[dofs]).sum(axis=1) > 0
     mat = np.flatnonzero(want != (p_mark >= 0))
     rhs = np.flatnonzero(want != (p >= 0))
-    assert sorted(cu.changed) == [((0, i), bool(want[i])) for i in mat]
+    assert sorted(cu.changed) == [((0, i, int(want[i])), bool(want[i])) for i in mat]
     assert reused == (list(mat) != list(rhs))
-    # (A + sum_mat D v v^T) du = -r - sum_rhs D p v on the free DOFs
+    # (A + sum_mat D u u^T) du = -r - sum_rhs D p u on the free DOFs, with u the gradient
+    # at the mark for a slave that leaves and the one now for a slave that comes in
     M, b = A.copy(), -r[free]
     for i in mat:
-        M += (k[i] if want[i] else -k[i]) * np.outer(column(i), column(i))
+        ui = column(i, v_now if want[i] else v)
+        M += (k[i] if want[i] else -k[i]) * np.outer(ui, ui)
     for i in rhs:
-        b -= (k[i] if want[i] else -k[i]) * p[i] * column(i)
+        b -= (k[i] if want[i] else -k[i]) * p[i] * column(i, v_now)
     np.testing.assert_allclose(M @ out[free], b, atol=1e-9 * np.abs(b).max())
     np.testing.assert_array_equal(out[:3], 0.0)
 

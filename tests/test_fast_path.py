@@ -305,3 +305,21 @@ def test_benchmark_counts_steps_and_keeps_the_deepest_penetration():
     sim.contact[1].max_penetration = 0.01
     _count(sim, totals)
     assert totals == {"substeps": 4, "newton_its": 10, "cutbacks": 2, "penetration_mm": 0.05}
+
+
+@pytest.mark.parametrize("refresh, most", [(0.0, None), (np.inf, 2)])
+def test_substeps_share_a_factorization_only_while_the_damping_matrix_is_held(refresh, most):
+    """Newton's key is the substep size (to rounding: the last substep of a caller step
+    lands on its end, t1 - t, a few ulps off) and the damping matrix's generation: rebuilt
+    at every substep (refresh 0, the default) the tangent's largest part changes, and each
+    substep factorizes; held, the ten equal substeps share a factorization or two."""
+    model = _bar()
+    tr = Transient(model, hold="step", fixed_step=0.001)
+    tr.damping.refresh = refresh
+    stats = tr.advance(0.01)
+    assert stats.converged and stats.substeps == 10
+    assert tr.damping.builds == (10 if refresh == 0.0 else 1)
+    if most is None:
+        assert stats.factorizations >= stats.substeps
+    else:
+        assert stats.factorizations <= most

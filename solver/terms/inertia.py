@@ -96,26 +96,32 @@ class Damping(Term):
         self._pattern, self._kdata = None, None
         self.h = None
         self.builds = 0
+        self.generation = 0             # counts the K_n due (prepare); a part of Newton's key
+        self._due = False
 
     def blocks(self):
         return [self.elasticity.bricks]
 
     def prepare(self, h, u_n, v_n):
+        """Start a substep from (u_n, v_n): K_n is due for a rebuild (a new ``generation``)
+        when a node moved more than refresh since the last build."""
         self.h, self.u_n = h, u_n.ravel().copy()
+        if self.beta and (self.u_geom is None
+                          or np.abs(u_n - self.u_geom).max() > self.refresh):
+            self.generation += 1
+            self._due = True
 
     def _update(self, pattern, block):
-        """Rebuild K_n (CSR data over pattern) when the start state moved > refresh."""
-        u_n = self.u_n.reshape(-1, 3)
-        stale = (self._pattern is not pattern or self.u_geom is None
-                 or np.abs(u_n - self.u_geom).max() > self.refresh)
-        if not stale or self.beta == 0.0:
+        """Build K_n (CSR data over pattern) on the substep's start state when due."""
+        if not (self._due or self._pattern is not pattern) or self.beta == 0.0:
             self._pattern = pattern
             return
+        u_n = self.u_n.reshape(-1, 3)
         self._kdata = np.zeros(pattern.nnz)
         scatter_matrices(passive_tangent(self.elasticity, u_n), pattern.index[block],
                          self._kdata)
         self._K = pattern.matrix(self._kdata)          # built once per K_n, not per residual
-        self._pattern, self.u_geom = pattern, u_n.copy()
+        self._pattern, self.u_geom, self._due = pattern, u_n.copy(), False
         self.builds += 1
 
     def force(self, v):
