@@ -83,3 +83,23 @@ def test_reference_geometry_reproduces_linear_fields_and_the_volume(shape, rng):
     box = (NODE_XI + 1) / 2 * np.array([2.0, 3.0, 1.5])          # 2 x 3 x 1.5 mm
     det0, _ = reference_geometry(box, np.arange(8)[None])
     assert abs(det0.sum() - 9.0) < 1e-12
+
+
+@pytest.mark.parametrize("form", ["mean_dilatation", "full"])
+@pytest.mark.parametrize("shape", SHAPES)
+def test_small_strain_stiffness_is_the_tangent_at_zero_strain(form, shape, rng):
+    """The damping's K_n kernel (closed form in mu, kappa) against the brick kernel's
+    tangent at u = 0 on the same distorted configuration, with a c20 and a c01 that the
+    closed form must ignore and count (mu = 2 (c10 + c01))."""
+    from solver.kernels.brick import FORMULATIONS
+    from solver.kernels.mooney_rivlin import small_strain_moduli
+    from solver.kernels.small_strain import small_strain_stiffness
+    p = P.copy()
+    p[1], p[2] = 0.4 * p[0], 3.0 * p[2]
+    X, dn, w = _element(shape, rng)
+    _, _, K, _ = element_response(np.zeros((8, 3)), dn, w, p, form)
+    mu, kappa = small_strain_moduli(p)
+    ke = np.empty((1, 24, 24))
+    small_strain_stiffness(dn[None], w[None], np.array([mu]), np.array([kappa]),
+                           FORMULATIONS[form], ke)
+    assert np.abs(ke[0] - K).max() <= 1e-12 * np.abs(K).max()

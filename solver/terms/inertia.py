@@ -32,8 +32,9 @@ The integrator (solver.transient) gives each term the step h and the start state
 import numpy as np
 
 from ..element import N_GP, reference_geometry
-from ..kernels.brick import brick_forces
 from ..kernels.scatter import scatter_matrices
+from ..kernels.mooney_rivlin import small_strain_moduli
+from ..kernels.small_strain import small_strain_stiffness
 from .base import Term
 
 
@@ -70,13 +71,12 @@ class Inertia(Term):
 def passive_tangent(elasticity, u=None):
     """Element tangents (m, 24, 24) of the elasticity term's bricks at zero strain on the
     configuration X + u (u (n, 3), default 0: the reference one)."""
-    m = len(elasticity.bricks)
     nodes = elasticity.mesh.nodes if u is None else elasticity.mesh.nodes + u
     det, dndx = reference_geometry(nodes, elasticity.bricks)
-    fe, ke = np.empty((m, 24)), np.empty((m, 24, 24))
-    brick_forces(np.zeros_like(nodes), elasticity.bricks, np.ascontiguousarray(dndx),
-                 np.ascontiguousarray(det), elasticity.params, elasticity.form, True, fe, ke,
-                 np.empty(m), np.empty(m))
+    mu, kappa = small_strain_moduli(elasticity.params.T)
+    ke = np.empty((len(elasticity.bricks), 24, 24))
+    small_strain_stiffness(dndx, det, np.ascontiguousarray(mu), np.ascontiguousarray(kappa),
+                           elasticity.form, ke)
     return ke
 
 
