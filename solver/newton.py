@@ -99,9 +99,12 @@ class NewtonOptions:
     refactor_ratio: float = 0.7
     # Correct each direction for the contact status the step predicts, by low-rank updates
     # of the factorization (solver.contact_update); None: where the caller gives a key (the
-    # substeps of solver.transient), as reuse. Static solves keep the plain direction: on
-    # the reference face's static OOP (tests/test_muscle_actions.py) the update stalled
-    # at lam = 0.48.
+    # substeps of solver.transient), as reuse. Static solves keep the plain direction: the
+    # reference face's static OOP in one load step (tests/test_muscle_actions.py) took 56
+    # iterations with it against 38 without on the half face, 62 against 36 on the full
+    # face. OOP + BUC stalls at lam = 0.483 on the half face with the update and on the
+    # full face without it: a lip node there slides past a free edge of the teeth sheet,
+    # where its contact is released, a jump in force (session 11, a scratch trace).
     contact_update: bool | None = None
 
 

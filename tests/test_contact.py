@@ -271,10 +271,10 @@ def test_sheet_is_oriented_towards_the_tissue_and_nodes_behind_it_are_dropped():
     np.testing.assert_allclose(term.initial_gap, 1.3)
 
 
-def test_no_contact_beyond_the_free_edge_of_a_sheet():
+def test_no_contact_beyond_the_free_edge_of_a_sheet_without_fade():
     sheet = grid_surface(2, 4.0)                              # [-2, 2]^2 at z = 0
     mesh = box(1, 1, 1, (1.0, 1.0, 1.0), origin=(-0.5, -0.5, 0.2))
-    term = RigidContact(mesh, mesh.node_sets["zmin"], sheet, area=1.0)
+    term = RigidContact(mesh, mesh.node_sets["zmin"], sheet, area=1.0, fade=0.0)
     u = np.zeros((mesh.n_nodes, 3))
     u[:, 2] = -0.3                                            # 0.1 mm into the sheet
     run = Runner(term, mesh.n_nodes)
@@ -283,6 +283,56 @@ def test_no_contact_beyond_the_free_edge_of_a_sheet():
     u[:, 0] = 2.0                                             # half the nodes off the edge
     run(u)
     assert term.n_active == 2 and np.isinf(term.gap).sum() == 2
+
+
+def test_penalty_fades_continuously_around_the_rim_of_a_sheet():
+    """A node behind a warped sheet (z = 0.4 x y: the two triangles at the corner (2, 2)
+    that hold its free edges have normals 0.35 rad apart) walks out over the free edge
+    x = 2, around the corner and back over the edge y = 2: its force has no jump, also where
+    the edge's region meets the corner's (the lips' fade, with the face normal of the
+    nearest triangle, jumps there), leaves the edge along that triangle's normal, fades out
+    over the fade length, and the term's tangent is the derivative of its force beyond an
+    edge (where the fade's normal is fixed)."""
+    sheet = grid_surface(4, 4.0, height=lambda x, y: 0.4 * x * y)
+    mesh = box(1, 1, 1, (0.2, 0.2, 0.2), origin=(1.0, 1.0, 2.0))
+    node = mesh.node_sets["zmin"][:1]
+    term = RigidContact(mesh, node, sheet, area=1.0, search_radius=3.0)
+    assert term.fade == 1.0
+    run = Runner(term, mesh.n_nodes)
+    x0 = mesh.nodes[node[0]]
+
+    def force(p):
+        u = np.zeros((mesh.n_nodes, 3))
+        u[node[0]] = p - x0
+        return -run(u, need_k=False).residual.reshape(-1, 3)[node[0]]
+
+    def at(x, y):           # 0.15 mm behind both corner triangles' planes (through (2, 2))
+        z = 1.6 + min(0.4 * (x - 2) + 0.8 * (y - 2), 0.8 * (x - 2) + 0.4 * (y - 2))
+        return np.array([x, y, z - 0.15])
+
+    t = np.linspace(0.0, 1.0, 1500)
+    legs = [np.column_stack([1.7 + 0.6 * t, 1.7 + 0 * t]),             # over x = 2
+            np.column_stack([2.3 + 0 * t, 1.7 + 0.6 * t]),             # past the corner
+            np.column_stack([2.3 - 0.6 * t, 2.3 + 0 * t])]             # over y = 2
+    F = np.array([force(at(x, y)) for x, y in np.vstack(legs)])
+    size = np.linalg.norm(F, axis=1)
+    assert (size > 0.05).all()
+    assert np.linalg.norm(np.diff(F, axis=0), axis=1).max() < 0.005 * size.max()
+    n1 = np.cross([1.0, 0.0, 0.4], [0.0, 1.0, 0.8])                    # triangle at x = 2
+    f = force(at(2.0 + 1e-6, 1.7))
+    np.testing.assert_allclose(f / np.linalg.norm(f), n1 / np.linalg.norm(n1), atol=1e-5)
+    assert np.allclose(force(at(3.1, 1.7)), 0.0)                       # beyond the fade
+    p = at(2.4, 1.7)
+    u = np.zeros((mesh.n_nodes, 3))
+    u[node[0]] = p - x0
+    i = 3 * node[0]
+    K = run(u).matrix().toarray()[i:i + 3, i:i + 3]
+    h, Kfd = 1e-6, np.zeros((3, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = h
+        Kfd[:, j] = -(force(p + e) - force(p - e)) / (2 * h)
+    np.testing.assert_allclose(K, Kfd, rtol=1e-5, atol=1e-6 * np.abs(K).max())
 
 
 def test_block_slides_on_a_frictionless_incline():
@@ -434,3 +484,24 @@ def test_face_lips_on_teeth_under_oop(face_anatomy):
           + "; ".join(f"{t.name}: {t.n_active} nodes, {t.total_force:.3f} N, "
                       f"{t.max_penetration:.4f} mm" for t in teeth))
     assert with_teeth["lip_protrusion"] > without["lip_protrusion"] + 0.2
+
+
+def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
+    """The paper's static OOP + BUC on the full reference face in one load step: a lip node
+    passes the incisal edge of a teeth sheet near lam = 0.48. Released there (as before
+    session 11) its force jumped and Newton stalled, the load increment cut below 1e-6;
+    with the faded rim penalty the load path goes through."""
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    scene = parse_scene({"scene": {"analysis": "static"}, "muscles": {"driven": ["BUC", "OOP"]},
+                         "effects": {"teeth_contact": True, "lip_contact": False,
+                                     "stiffening_rule": "intersect"}})
+    sim = Simulation(scene, loaded_anatomy=face_anatomy)
+    sim.set_activations({"OOP": 1.0, "BUC": 1.0})
+    stats = sim.step(1.0)
+    assert stats.converged, stats.reason
+    assert all(t.fade > 0 for t in sim.contact)
+    assert sum(t.total_force for t in sim.contact) > 0.1
+    assert max(t.max_penetration for t in sim.contact) < 0.1   # 0.065 mm, 4.7 N upper teeth
+    print("\n" + "; ".join(f"{t.name}: {t.n_active} nodes, {t.total_force:.3f} N, "
+                          f"{t.max_penetration:.4f} mm" for t in sim.contact))

@@ -329,15 +329,44 @@ def boundary_penalty(d, m, k, smooth, fade, need_k, g, H):
 
 
 @njit(cache=True)
+def rim_normal(d, region, t, tris, xv, fn, vn, rim_other, rim_tri, m):
+    """The fade's normal m (3,) for a point at d (3,) from its closest point on a free
+    edge (region 1 + j of triangle t: the face normal fn[t]) or free vertex v (region
+    4 + j): between the face normals of the triangles of v's two free edges (other ends
+    rim_other[v], triangles rim_tri[v]), by the point's place in v's region, a1 / (a1 + a2)
+    with a_k = d . e_k <= 0 (e_k the unit edge directions from v): fn of the first edge's
+    triangle where the region meets that edge's (a1 = 0), of the second's where it meets
+    the second's, so that m is continuous around the rim; vn[v] where v has not two."""
+    if region < VERTEX:
+        m[:] = fn[t]
+        return
+    v = tris[t, region - VERTEX]
+    if rim_other[v, 0] < 0:
+        m[:] = vn[v]
+        return
+    a = np.zeros(2)
+    for c in range(2):
+        e = xv[rim_other[v, c]] - xv[v]
+        a[c] = min(0.0, (d @ e) / np.sqrt(e @ e))
+    f = a[0] / (a[0] + a[1]) if a[0] + a[1] < 0.0 else 0.5
+    m[:] = (1.0 - f) * fn[rim_tri[v, 0]] + f * fn[rim_tri[v, 1]]
+    m /= np.sqrt(m @ m)
+
+
+@njit(cache=True)
 def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, depth,
-                  smooth, need_k, fe, ke, gap, force, tri):
+                  smooth, need_k, fe, ke, gap, force, tri, fade, rim_other, rim_tri):
     """Slave points xs (s, 3) with stiffness k (s,) on the rigid triangles tris (t, 3) over
     xv (p, 3); candidates of slave i: cand[ptr[i]:ptr[i + 1]]. Fills fe (s, 3), ke (s, 3, 3)
     (zero where inactive), gap (s,) (signed; inf without a candidate or beyond a free
-    boundary), force (s,) (N) and tri (s,) (nearest triangle or -1). Active: g <= 0 and
-    |g| <= depth. Returns the energy."""
+    boundary without fade), force (s,) (N) and tri (s,) (nearest triangle or -1). Active:
+    g <= 0 and |g| <= depth. Beyond a free edge or vertex the penalty fades over fade (mm;
+    boundary_penalty with rim_normal, whose turn with the point is left out of the force
+    and tangent; fade 0: released). Returns the energy."""
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
+    d, mr, g = np.empty(3), np.empty(3), np.empty(3)
+    H, proj = np.empty((3, 3)), np.empty((3, 3))
     for i in range(xs.shape[0]):
         fe[i] = 0.0
         if need_k:
@@ -349,6 +378,19 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
             continue
         tri[i] = cand[ptr[i] + j]
         if free:                       # beyond a free edge or vertex: no side
+            if fade <= 0.0:
+                continue
+            d[:] = xs[i] - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
+            rim_normal(d, region, tri[i], tris, xv, fn, vn, rim_other, rim_tri, mr)
+            psi, depth_i = boundary_penalty(d, mr, k[i], smooth, fade, need_k, g, H)
+            if psi <= 0.0:
+                continue
+            distance_derivatives(xs[i], xm, region, w, 1, True, d, proj)   # proj = dd/dx
+            fe[i] = proj @ g
+            if need_k:
+                ke[i] = proj @ H @ proj
+            gap[i], force[i] = -depth_i, np.sqrt(fe[i] @ fe[i])
+            energy += psi
             continue
         inside = sd <= 0.0
         if (inside and dist > depth) or (not inside and dist >= smooth):

@@ -53,8 +53,8 @@ class _Rigid:
         self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
                                                        axis=2).max(axis=1))
         self.depth = float(term.search_radius)
-        # the term's kernel arguments after `tri` (e.g. its free-edge fade length)
-        self.extra = (float(term.fade),) if hasattr(term, "fade") else ()
+        # the term's kernel arguments after `tri` (its free-edge fade and rim topology)
+        self.extra = term.rim_args()
         self.ptr = np.zeros(s + 1, dtype=np.int64)
         self.cand = np.zeros(s * len(tris), dtype=np.int64)
         self.dist = np.zeros(s)

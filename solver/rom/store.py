@@ -33,8 +33,9 @@ FORMAT = 1
 # The full-order physics a model's snapshots came from: bumped when a term's forces change
 # (the key then differs, so older models and cached snapshot runs are not used).
 # 2: lip contact faded beyond the edge of a slave's candidate triangles (session 4);
-# 3: the generic face's teeth one surface past the free inner surface (session 5).
-PHYSICS = 3
+# 3: the generic face's teeth one surface past the free inner surface (session 5);
+# 4: the teeth's penalty faded beyond their free edges, not released (session 11).
+PHYSICS = 4
 ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
 
 

@@ -10,31 +10,28 @@ triangles; on a face, an edge or a vertex of a triangle), d = x - c, and
 with N the pseudo-normal of the closest feature (the face's normal; on an edge the mean of
 its two faces' normals; at a vertex the angle-weighted normal): the signed distance to the
 surface, negative inside. The outward normal is n = -d / |d| for g < 0 (the face normal
-on a face). An open sheet (the teeth) has free boundary edges: a node whose closest point
-lies on one (or on a free boundary vertex) has no side and is out of contact on the rigid
-teeth, so there is no contact beyond the sheet's edge (a lip may wrap around the incisors'
-edge). On the lips (LipContact) such a node is not released but its penalty fades out,
-on the plane of the nearest triangle (normal N): with the depth a = -N . d behind it and
-the distance l = |d + a N| beyond the edge,
+on a face). An open sheet (the teeth, the lips) has free boundary edges: a node whose
+closest point lies on one (or on a free boundary vertex) has no side. Such a node is not
+released (a jump in force, on which Newton stalls) but its penalty fades out, on the plane
+of the boundary (normal N): with the depth a = -N . d behind it and the distance
+l = |d + a N| beyond the edge,
 
     Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
 
-psi the penalty law below and L = fade (1 mm). At l = 0 this is the face's energy (d is
-along N there) and phi'(0) = 0, so Psi is C1 across the edge; the reported gap is
--a phi. The tangent there leaves out the master's rotation and sliding. (The same fade on
-the teeth was tried: with the face normal on the free edges and the vertex normal at
-free vertices it took the coarse opening-rounding gesture of
-benchmarks/accuracy_vs_time.py from 155 s with 38 cutbacks to 52 s with none, but a
-static BUC solve then hung on the jump where a node passes from a free edge's region to a
-free vertex's; with normals interpolated along the boundary the gesture took 250 s.
-A fade continuous at both needs a normal blended across each boundary vertex's wedge.
-What made that gesture slow was the generic face's teeth geometry: a lip node sliding
-past the upper sheet's top edge while pressed on it, and two arches overlapping as
-coincident sheets. The generic teeth are now one surface, cut in two along the row line
-and reaching 6 mm past the free inner surface (solver/anatomy/generic_muscles.py), and
-build_contact_terms joins rigid surfaces that share a seam into one term
-(joined_surfaces): the coarse gesture takes 20 s with no cutback. The release remains
-where a node can reach a sheet's real edge.)
+psi the penalty law below and L = fade (1 mm). On the lips N is the face normal of the
+nearest triangle. At l = 0 this is the face's energy (d is along N there) and
+phi'(0) = 0, so Psi is C1 across the edge; the reported gap is -a phi. The tangent there
+leaves out the master's rotation and sliding. On the rigid teeth (RigidContact, fade 0:
+released as before) N is the rim normal (solver.kernels.contact.rim_normal): the face
+normal beyond an edge, and beyond a free vertex a blend of the face normals of its two
+free edges' triangles by the point's place in the vertex's region, so that N is
+continuous all around the rim (its turn with the point is left out of the force, which
+stays continuous, and of the tangent). With the face normal of the nearest triangle at
+free vertices too (as on the lips) the force jumps where a node passes from an edge's
+region to a vertex's: a static BUC solve once hung there; with the teeth released, the
+reference face's static OOP + BUC stalled at lam = 0.483 (session 11) where a lip node
+passed the incisal edge of the teeth sheet. Rigid surfaces that share a seam are joined
+into one term (joined_surfaces), so that a seam is an inner edge, not a rim.
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
 below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
@@ -51,7 +48,7 @@ theorem (solver.kernels.contact): dF/dX_a = N_a d with N = (1, -w_1, -w_2, -w_3)
 (w: barycentric weights of c), and the Hessian N N^T (x) I - B M^-1 B^T carries the
 rotation of the master's normal and the sliding of c exactly. Psi is C1 across g = 0
 and where the closest point changes feature (not where the nearest triangle jumps across
-a medial axis, nor at a free edge, where a penetrating node is released); the tangent is
+a medial axis; beyond a rim, see the fade above); the tangent is
 its exact Hessian for a fixed active set (finite-difference checks in
 tests/test_contact.py). Optionally (smoothing s > 0 mm) the law is smoothed on both
 sides of g = 0: Psi_i = k_i (s - g)^3 / (12 s) over |g| < s, joined (C2) to
@@ -187,6 +184,22 @@ class _Topology:
         self.free_vertex[edges[self.free_edge].ravel()] = True
         self.mirror_vertex = np.zeros(p, dtype=bool)
         self.mirror_vertex[edges[self.mirror_edge].ravel()] = True
+        # free vertex v -> its two free edges: the other ends (p, 2) and the triangles
+        # (p, 2) (-1 where a vertex has not exactly two: the fade takes its normal vn)
+        self.rim_other = -np.ones((p, 2), dtype=np.int64)
+        self.rim_tri = -np.ones((p, 2), dtype=np.int64)
+        tf, jf = np.nonzero(self.free_edge)
+        ends = edges[tf, jf]                                              # (f, 2)
+        v = np.concatenate([ends[:, 0], ends[:, 1]])
+        other = np.concatenate([ends[:, 1], ends[:, 0]])
+        tri = np.concatenate([tf, tf])
+        order = np.argsort(v, kind="stable")
+        v, other, tri = v[order], other[order], tri[order]
+        first = np.searchsorted(v, v)
+        two = np.bincount(v, minlength=p)[v] == 2
+        slot = np.arange(len(v)) - first
+        self.rim_other[v[two], slot[two]] = other[two]
+        self.rim_tri[v[two], slot[two]] = tri[two]
 
 
 class _Normals:
@@ -351,12 +364,18 @@ class RigidContact(_Report, Term):
     margin          mm: slave motion allowed before the candidate lists are rebuilt
     rest_tolerance  mm: slaves behind the surface at rest by more are dropped
     smoothing       mm: the penalty law is smoothed over |g| < smoothing (0: pure penalty)
+    fade            mm: beyond a free edge or vertex of the sheet the penalty fades over
+                    this length (0: a node there is released)
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
-                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, smoothing=0.0):
+                 area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, smoothing=0.0,
+                 fade=EDGE_FADE):
         _check(penalty, smoothing)
+        if not fade >= 0:
+            raise ParameterError(f"{name}: fade = {fade!r} must be >= 0 (mm)")
         self.name, self.mesh, self.smoothing = name, mesh, float(smoothing)
+        self.fade = float(fade)
         slaves = np.asarray(slave_nodes, dtype=np.int64).ravel()
         self.vertices = np.ascontiguousarray(surface.vertices, dtype=np.float64)
         tris = np.ascontiguousarray(surface.triangles, dtype=np.int64)
@@ -391,6 +410,11 @@ class RigidContact(_Report, Term):
     def _stiffnesses(self):
         return [self.k]
 
+    def rim_args(self):
+        """The kernel's (fade, rim_other, rim_tri) (solver.kernels.contact.rigid_contact)."""
+        topo = self.normals.topo
+        return self.fade, topo.rim_other, topo.rim_tri
+
     def _rest_gaps(self, tris, x):
         """(s,) signed gaps of points x (s, 3) to the triangles tris, whatever their
         distance."""
@@ -418,7 +442,8 @@ class RigidContact(_Report, Term):
         gap, force = np.empty(len(x)), np.empty(len(x))
         asm.energy += rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand,
                                     *self.normals.args(), self.search_radius, self.smoothing,
-                                    asm.need_k, self._fe, self._ke, gap, force, self.tri)
+                                    asm.need_k, self._fe, self._ke, gap, force, self.tri,
+                                    *self.rim_args())
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)
         nodal = np.zeros((self.mesh.n_nodes, 3))
         nodal[self.slaves] = -self._fe
