@@ -100,11 +100,12 @@ class NewtonOptions:
     # Correct each direction for the contact status the step predicts, by low-rank updates
     # of the factorization (solver.contact_update); None: where the caller gives a key (the
     # substeps of solver.transient), as reuse. Static solves keep the plain direction: the
-    # reference face's static OOP in one load step (tests/test_muscle_actions.py) took 56
-    # iterations with it against 38 without on the half face, 62 against 36 on the full
-    # face. OOP + BUC stalls at lam = 0.483 on the half face with the update and on the
-    # full face without it: a lip node there slides past a free edge of the teeth sheet,
-    # where its contact is released, a jump in force (session 11, a scratch trace).
+    # reference face's static OOP and OOP + BUC in one load step (as in
+    # tests/test_muscle_actions.py, teeth contact) took 66 and 124 iterations with it
+    # against 39 and 28 without on the half face, 63 and 93 against 40 and 29 on the full
+    # face (session 11, a scratch script). (Before that session's faded teeth rim, OOP +
+    # BUC stalled at lam = 0.483 on the half face with the update and on the full face
+    # without: a lip node released past a free edge of the teeth, a jump in force.)
     contact_update: bool | None = None
 
 

@@ -488,7 +488,7 @@ def test_face_lips_on_teeth_under_oop(face_anatomy):
 
 def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
     """The paper's static OOP + BUC on the full reference face in one load step: a lip node
-    passes the incisal edge of a teeth sheet near lam = 0.48. Released there (as before
+    passes a free edge of a teeth sheet near lam = 0.48. Released there (as before
     session 11) its force jumped and Newton stalled, the load increment cut below 1e-6;
     with the faded rim penalty the load path goes through."""
     from solver.scene import parse_scene

@@ -30,7 +30,7 @@ stays continuous, and of the tangent). With the face normal of the nearest trian
 free vertices too (as on the lips) the force jumps where a node passes from an edge's
 region to a vertex's: a static BUC solve once hung there; with the teeth released, the
 reference face's static OOP + BUC stalled at lam = 0.483 (session 11) where a lip node
-passed the incisal edge of the teeth sheet. Rigid surfaces that share a seam are joined
+passed a free edge of a teeth sheet. Rigid surfaces that share a seam are joined
 into one term (joined_surfaces), so that a seam is an inner edge, not a rim.
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,

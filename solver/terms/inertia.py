@@ -32,8 +32,8 @@ The integrator (solver.transient) gives each term the step h and the start state
 import numpy as np
 
 from ..element import N_GP, reference_geometry
-from ..kernels.scatter import scatter_matrices
 from ..kernels.mooney_rivlin import small_strain_moduli
+from ..kernels.scatter import scatter_matrices
 from ..kernels.small_strain import small_strain_stiffness
 from .base import Term
 
