@@ -2,8 +2,11 @@
 
 ``superlu``  scipy.sparse.linalg.splu (always available)
 ``pardiso``  Intel MKL PARDISO through pypardiso (x86_64 wheels on PyPI), symmetric
-``auto``     the fastest available, by benchmarks/solver_scaling.py on this project's
-             matrices: pardiso where importable, else superlu.
+``pardiso-single``  the same, factorized and solved in single precision (Pardiso's
+             docstring: Newton's residual stays in double)
+``auto``     the fastest available, by benchmarks/solver_scaling.py and
+             benchmarks/fast_path.py on this project's matrices: pardiso-single where
+             pypardiso imports, else superlu.
 
 Reuse: a solver counts its factorizations and keeps a tag of what its current one was
 made for (``refactor(K, tag)``; ``tag`` None: no valid factorization), so that Newton
@@ -134,6 +137,9 @@ class SuperLU(_Reusable):
 # relative residual 2.5e-13 against 3.2e-13 (session 9, a scratch timing on tangents saved
 # from benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
 # apart; figures of the whole gesture in docs/fast_path.md).
+# A single-precision factorization whose first solve leaves ||K x - b|| above this times
+# ||b|| is made again in double (case b's tangents: about 6e-5).
+SINGLE_CHECK = 1e-3
 IPARM = {1: 1,          # use the entries below
          2: 2,          # fill-in reducing ordering: METIS nested dissection
          8: 0,          # iterative refinement: two steps, only after perturbed pivots
@@ -143,27 +149,111 @@ IPARM = {1: 1,          # use the entries below
          21: 0}         # 1x1 diagonal pivoting
 
 
+def _mkl_threads():
+    try:
+        return max(int(os.environ["MKL_NUM_THREADS"]), 1)
+    except (KeyError, ValueError):
+        return _cpus()
+
+
+class _Handle:
+    """One PARDISO instance (pypardiso's loader and handle; its ctypes entry point called
+    directly, with the index arrays converted once per pattern instead of at every call)
+    in double or single precision (iparm(28) = 1: the matrix, the right-hand sides and the
+    solutions in float32). Conditional numerical reproducibility (iparm(34), MKL's thread
+    count): the same matrix factorizes to the same bits every time. Without it a single
+    factorization of case b's tangent, made again on the same handle, solved 5e-5 mm
+    differently now and then (double: 1e-13 mm), and a step repeated from the same state
+    (solver.transient: an FMU rollback) did not repeat exactly."""
+
+    def __init__(self, single):
+        import pypardiso
+        self.p = pypardiso.PyPardisoSolver(mtype=-2)
+        for i, value in IPARM.items():
+            self.p.set_iparm(i, value)
+        self.p.set_iparm(28, 1 if single else 0)
+        self.p.set_iparm(34, _mkl_threads())    # conditional numerical reproducibility
+        self.dtype = np.float32 if single else np.float64
+        self.pattern = None         # the key of the analysed pattern
+        self.ia = self.ja = None    # its 1-based int32 index arrays
+        self.a = None               # the factorized values, in dtype
+
+    def call(self, phase, n, b):
+        p = self.p
+        b = np.asfortranarray(b, dtype=self.dtype)
+        x = np.zeros_like(b)
+        err = ctypes.c_int32(0)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        p._mkl_pardiso(p.pt.ctypes.data_as(ctypes.POINTER(p._pt_type[0])),
+                       ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(1)),
+                       ctypes.byref(ctypes.c_int32(-2)), ctypes.byref(ctypes.c_int32(phase)),
+                       ctypes.byref(ctypes.c_int32(n)), self.a.ctypes.data_as(ctypes.c_void_p),
+                       self.ia.ctypes.data_as(i32), self.ja.ctypes.data_as(i32),
+                       p.perm.ctypes.data_as(i32),
+                       ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
+                       p.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
+                       b.ctypes.data_as(ctypes.c_void_p), x.ctypes.data_as(ctypes.c_void_p),
+                       ctypes.byref(err))
+        if err.value != 0:
+            raise RuntimeError(f"PARDISO error {err.value} in phase {phase}")
+        return np.ascontiguousarray(x, dtype=np.float64)
+
+    def factorize(self, U, key):
+        """Analyse U's pattern where it is new (phase 11), then factorize (phase 22)."""
+        n = U.shape[0]
+        if key != self.pattern:
+            self.ia = (U.indptr + 1).astype(np.int32)
+            self.ja = (U.indices + 1).astype(np.int32)
+            self.a = U.data.astype(self.dtype)
+            self.call(11, n, np.zeros(n))
+            self.pattern = key
+        self.a = U.data.astype(self.dtype)
+        self.call(22, n, np.zeros(n))
+
+    @property
+    def perturbed(self):
+        """Pivots perturbed by the last factorization (iparm(14))."""
+        return int(self.p.iparm[13])
+
+    def release(self):
+        if self.pattern is not None:
+            self.p.free_memory(everything=False)
+            self.pattern = None
+
+
 class Pardiso(_Reusable):
     """MKL PARDISO, real symmetric indefinite (mtype -2) on the upper triangle; the
     symbolic analysis (ordering) is done once per sparsity pattern and reused, and so is
     the gather of the upper triangle from K's CSR data when K comes with the same index
-    arrays (as solver.assembly.Reduction.matrix gives them)."""
+    arrays (as solver.assembly.Reduction.matrix gives them).
 
-    name = "pardiso"
+    precision "double", or "single": the factorization and the solves in float32 (the
+    right-hand side and the solution converted), about 40 % faster to factorize and half
+    the time to solve; the solution's relative residual ||K x - b|| / ||b|| is then about
+    1e-5 to 1e-4 instead of 1e-13 (case b's tangent, docs/fast_path.md). Newton's residual
+    stays in double, so the converged state is that of the double solver to the Newton
+    tolerance; a direction only converges a little less. A single factorization falls back
+    to double (the factorization made again, counted as one) where it perturbed a pivot,
+    or where the first solve with it leaves a relative residual above SINGLE_CHECK."""
 
-    def __init__(self):
-        import pypardiso
-        self._p = pypardiso.PyPardisoSolver(mtype=-2)
-        for i, value in IPARM.items():
-            self._p.set_iparm(i, value)
-        self._pattern = None
+    def __init__(self, precision="double"):
+        if precision not in ("double", "single"):
+            raise ParameterError(f"precision {precision!r} is not 'double' or 'single'")
+        self.precision = precision
+        self.name = "pardiso-single" if precision == "single" else "pardiso"
+        self._handles = {}
         self._U = None
-        self._source = None         # (indptr, indices) of the K the gather was made for
+        self._K = None              # the matrix of a single factorization, until checked
+        self._source = None         # (shape, indptr, indices) of the K the gather was made for
         self._upper = None          # data indices of K's upper triangle, in U's order
+        self._key = None            # the pattern key of the current factorization
+        self._active = None         # the handle holding the current factorization
+        self.fallbacks = 0          # single factorizations redone in double
 
-    def _phase(self, phase, b):
-        self._p.set_phase(phase)
-        return self._p._call_pardiso(self._U, b)
+    def _handle(self, single):
+        if single not in self._handles:
+            self._handles[single] = _Handle(single)
+        return self._handles[single]
 
     def _same_pattern(self, K):
         src = self._source
@@ -190,28 +280,44 @@ class Pardiso(_Reusable):
         return U
 
     def factorize(self, K):
-        U = self._gather(sp.csr_matrix(K))
+        K = sp.csr_matrix(K)
+        U = self._gather(K)
         self._U = U
         if not np.all(np.diff(U.indptr)):
             raise RuntimeError("matrix is singular: an empty row")
         key = (U.shape[0], U.nnz, hash(U.indptr.tobytes()), hash(U.indices.tobytes()))
-        zero = np.zeros((U.shape[0], 1))
-        if key != self._pattern:
-            self._phase(11, zero)
-            self._pattern = key
-        self._phase(22, zero)
+        self._key, self._active, self._K = key, None, None
+        if self.precision == "single":
+            h = self._handle(True)
+            h.factorize(U, key)
+            if h.perturbed == 0:
+                self._active, self._K = h, K
+                return
+            self.fallbacks += 1
+        self._active = self._handle(False)
+        self._active.factorize(U, key)
 
     def solve(self, b):
         """x (n,) or (n, k) for b (n,) or (n, k) (k right-hand sides in one call)."""
+        if self._active is None:
+            raise RuntimeError("no factorization to solve with")
         b = np.asarray(b, dtype=np.float64)
-        return self._phase(33, np.asfortranarray(b) if b.ndim == 2 else b)
+        x = self._active.call(33, self._U.shape[0], b)
+        if self._K is not None:                 # the first solve of a single factorization
+            K, self._K = self._K, None
+            if np.linalg.norm(K @ x - b) > SINGLE_CHECK * np.linalg.norm(b):
+                self.fallbacks += 1
+                self._active = self._handle(False)
+                self._active.factorize(self._U, self._key)
+                x = self._active.call(33, self._U.shape[0], b)
+        return x
 
     def release(self):
-        """Free the factorization's memory (phase 0; MKL frees the rest at exit, and
+        """Free the factorizations' memory (phase 0; MKL frees the rest at exit, and
         freeing it twice with phase -1 corrupted the heap)."""
-        if self._pattern is not None:
-            self._p.free_memory(everything=False)
-            self._pattern, self._U, self._source = None, None, None
+        for h in self._handles.values():
+            h.release()
+        self._U, self._source, self._active, self._K = None, None, None, None
         self.tag = None
 
     def __del__(self):
@@ -222,14 +328,17 @@ class Pardiso(_Reusable):
 
 
 def available():
-    """Names of the solvers that import here."""
+    """Names of the solvers that import here, the fastest first."""
     names = ["superlu"]
     try:
         import pypardiso  # noqa: F401
-        names.insert(0, "pardiso")
+        names[:0] = ["pardiso-single", "pardiso"]
     except ImportError:
         pass
     return names
+
+
+SOLVERS = ("auto", "pardiso-single", "pardiso", "superlu")
 
 
 def make_solver(name="auto"):
@@ -237,8 +346,8 @@ def make_solver(name="auto"):
         name = available()[0]
     if name == "superlu":
         return SuperLU()
-    if name == "pardiso":
-        if "pardiso" not in available():
-            raise ParameterError("linear solver 'pardiso' needs the package pypardiso")
-        return Pardiso()
-    raise ParameterError(f"linear solver {name!r} is not one of ['auto', 'pardiso', 'superlu']")
+    if name in ("pardiso", "pardiso-single"):
+        if name not in available():
+            raise ParameterError(f"linear solver {name!r} needs the package pypardiso")
+        return Pardiso("single" if name == "pardiso-single" else "double")
+    raise ParameterError(f"linear solver {name!r} is not one of {list(SOLVERS)}")

@@ -45,7 +45,7 @@ recorded outputs and, for standalone runs, activation schedules.
 
     [solver]
     formulation = "mean_dilatation" # | "full"
-    linear_solver = "auto"          # | "pardiso" | "superlu"
+    linear_solver = "auto"          # | "pardiso-single" | "pardiso" | "superlu"
     newton_rtol = 1e-6
     substep_tol = 1e-3              # mm, local error per substep
     max_substep = 5e-3              # s
@@ -84,6 +84,7 @@ import numpy as np
 from .anatomy.base import MUSCLE_NAMES
 from .errors import FaceFMUError
 from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
+from .linsolve import SOLVERS
 
 ANALYSES = ("static", "transient")
 LEVELS = ("coarse", "medium", "paper", "fine")
@@ -258,7 +259,7 @@ SECTIONS = {
     "damping": {"alpha": ("alpha", _number(0.0)), "beta": ("beta", _number(0.0)),
                 "density": ("density", _number(0.0))},
     "solver": {"formulation": ("formulation", _choice(("mean_dilatation", "full"))),
-               "linear_solver": ("linear_solver", _choice(("auto", "pardiso", "superlu"))),
+               "linear_solver": ("linear_solver", _choice(SOLVERS)),
                "newton_rtol": ("newton_rtol", _number(0.0, 1e-1, strict_lo=True)),
                "substep_tol": ("substep_tol", _number(0.0, strict_lo=True)),
                "max_substep": ("max_substep", _number(0.0, strict_lo=True)),

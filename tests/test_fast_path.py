@@ -250,7 +250,7 @@ def test_pardiso_solves_without_refinement_and_stays_exact_on_indefinite_matrice
     b = rng.normal(size=n)
     lin.refactor(A, "spd")
     assert np.allclose(A @ lin.solve(b), b, atol=1e-10)
-    assert lin._p.iparm[6] == 0                                      # refinement steps taken
+    assert lin._active.p.iparm[6] == 0                               # refinement steps taken
     B = sp.random(m, n, density=0.3, random_state=rng) + sp.eye(m, n)
     KKT = sp.bmat([[A, B.T], [B, None]], format="coo")                # zero diagonal block,
     zeros = np.arange(n, n + m)                                       # stored (PARDISO's rule)
@@ -260,6 +260,42 @@ def test_pardiso_solves_without_refinement_and_stays_exact_on_indefinite_matrice
     lin.refactor(KKT, "kkt")
     x = lin.solve(c)
     assert np.linalg.norm(KKT @ x - c) <= 1e-9 * np.linalg.norm(c)
+
+
+@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
+def test_single_precision_pardiso_solves_to_its_precision_and_falls_back_to_double(rng):
+    """pardiso-single: a well-conditioned SPD matrix solves to single precision (not to
+    round-off in double, so the float32 path is the one taken); a saddle-point matrix
+    (perturbed pivots) and an SPD matrix of condition 1e9 (a first solve far off) are
+    factorized again in double and solve to round-off; 'auto' is the single one."""
+    from solver.linsolve import SINGLE_CHECK, Pardiso
+    n, m = 60, 12
+    A = sp.random(n, n, density=0.1, random_state=rng)
+    A = sp.csr_matrix(A @ A.T + sp.identity(n))
+    lin = make_solver("pardiso-single")
+    assert isinstance(lin, Pardiso) and lin.name == "pardiso-single"
+    assert make_solver("auto").name == "pardiso-single"
+    b = rng.normal(size=n)
+    lin.refactor(A, "spd")
+    rel = np.linalg.norm(A @ lin.solve(b) - b) / np.linalg.norm(b)
+    assert 1e-12 < rel < SINGLE_CHECK and lin.fallbacks == 0
+    X = lin.solve(np.column_stack([b, -b]))                         # two right-hand sides
+    assert np.allclose(X[:, 0], -X[:, 1]) and X.dtype == np.float64
+    B = sp.random(m, n, density=0.3, random_state=rng) + sp.eye(m, n)
+    KKT = sp.bmat([[A, B.T], [B, None]], format="coo")
+    zeros = np.arange(n, n + m)
+    KKT = sp.csr_matrix((np.r_[KKT.data, np.zeros(m)], (np.r_[KKT.row, zeros],
+                                                        np.r_[KKT.col, zeros])))
+    c = rng.normal(size=n + m)
+    lin.refactor(KKT, "kkt")
+    assert np.linalg.norm(KKT @ lin.solve(c) - c) <= 1e-9 * np.linalg.norm(c)
+    assert lin.fallbacks == 1
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    bad = sp.csr_matrix((Q * np.logspace(0, -9, n)) @ Q.T)
+    lin.refactor(bad, "ill")
+    x = lin.solve(b)
+    assert lin.fallbacks == 2
+    assert np.linalg.norm(bad @ x - b) <= 1e-6 * np.linalg.norm(b)
 
 
 def test_benchmark_knobs_parse_and_reach_their_objects():
