@@ -93,11 +93,11 @@ REFERENCE_FACE = Path(os.environ.get(
     Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
 LEVELS = ("coarse", "medium", "paper", "fine")
 KNOBS = ("anatomy", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
-         "formulation", "stiffening")
+         "newton_utol", "formulation", "stiffening")
 # the Scene defaults, written out so that every row of the table says what it ran
 DEFAULT = dict(anatomy="generic", level="paper", rows=None, half=True, substep_tol=1e-3,
-               max_substep=5e-3, newton_rtol=1e-6, formulation="mean_dilatation",
-               stiffening=True)
+               max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5,
+               formulation="mean_dilatation", stiffening=True)
 TIGHT = dict(substep_tol=2.5e-4, max_substep=2.5e-3, newton_rtol=1e-8)
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
 GESTURE_DURATION = 0.1     # s
@@ -394,7 +394,8 @@ def plot(table, path, title, cost="wall_s"):
     plt.close(fig)
 
 
-COLUMNS = ["label", "fidelity", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
+COLUMNS = ["label", "fidelity", "level", "rows", "half", "substep_tol", "max_substep",
+           "newton_rtol", "newton_utol",
            "formulation", "stiffening", "ndof", "h_mm", "wall_s", "cpu_s", "rtf", "peak_mb",
            "err_aperture_mm", "err_protrusion_mm", "err_mm", "pareto", "preset",
            "reference", "anatomy", "error"]

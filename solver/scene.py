@@ -46,7 +46,8 @@ recorded outputs and, for standalone runs, activation schedules.
     [solver]
     formulation = "mean_dilatation" # | "full"
     linear_solver = "auto"          # | "pardiso-single" | "pardiso" | "superlu"
-    newton_rtol = 1e-6
+    newton_rtol = 1e-6              # residual over the load scale
+    newton_utol = 1e-5              # mm, Newton's last update
     substep_tol = 1e-3              # mm, local error per substep
     max_substep = 5e-3              # s
     min_substep = 1e-7              # s
@@ -143,6 +144,7 @@ class Scene:
     formulation: str = "mean_dilatation"
     linear_solver: str = "auto"
     newton_rtol: float = 1e-6
+    newton_utol: float = 1e-5
     substep_tol: float = 1e-3
     max_substep: float = 5e-3
     min_substep: float = 1e-7
@@ -261,6 +263,7 @@ SECTIONS = {
     "solver": {"formulation": ("formulation", _choice(("mean_dilatation", "full"))),
                "linear_solver": ("linear_solver", _choice(SOLVERS)),
                "newton_rtol": ("newton_rtol", _number(0.0, 1e-1, strict_lo=True)),
+               "newton_utol": ("newton_utol", _number(0.0, 1.0, strict_lo=True)),
                "substep_tol": ("substep_tol", _number(0.0, strict_lo=True)),
                "max_substep": ("max_substep", _number(0.0, strict_lo=True)),
                "min_substep": ("min_substep", _number(0.0, strict_lo=True)),

@@ -86,6 +86,7 @@ class Simulation:
                               formulation=sc.formulation, linear_solver=sc.linear_solver)
         model = self.face.model
         model.newton_options.rtol = sc.newton_rtol
+        model.newton_options.utol = sc.newton_utol
         density = kg_per_m3(sc.density)
         if GRAVITY[sc.gravity] is not None:
             from .terms.gravity import Gravity

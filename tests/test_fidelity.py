@@ -47,7 +47,7 @@ def test_presets_set_only_numerical_scene_fields_and_leave_the_model():
 def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
     mesh = [(LEVELS.index(PRESETS[n]["level"]), PRESETS[n]["rows"]) for n in FIDELITIES]
     assert mesh == sorted(mesh) and len(set(mesh)) == len(mesh)
-    for key in ("substep_tol", "max_substep", "newton_rtol"):
+    for key in ("substep_tol", "max_substep", "newton_rtol", "newton_utol"):
         values = [PRESETS[n][key] for n in FIDELITIES]
         assert values == sorted(values, reverse=True), key
 
@@ -65,6 +65,7 @@ def test_simulation_applies_the_preset_under_its_overrides():
         "substep_tol"]
     assert sim.scene.newton_rtol == 1e-7                          # the override wins
     assert sim.face.model.newton_options.rtol == 1e-7
+    assert sim.face.model.newton_options.utol == PRESETS["balanced"]["newton_utol"] == 1e-4
     assert sim.scene.rows == 2 and sim.anatomy.half
     assert sim.anatomy.mesh.n_bricks == 2 * 1449                 # medium half face, 2 rows
 
@@ -83,6 +84,10 @@ def test_scene_file_fidelity_key_gives_defaults_that_its_own_keys_override():
                          "solver": {"newton_rtol": 1e-3}})
     assert (scene.level, scene.newton_rtol) == ("coarse", 1e-3)
     assert scene.substep_tol == PRESETS["accurate"]["substep_tol"]
+    assert parse_scene({"solver": {"newton_utol": 2e-4}}).newton_utol == 2e-4
+    with pytest.raises(SceneError) as info:
+        parse_scene({"solver": {"newton_utol": 0.0}}, source="s.toml")
+    assert "solver.newton_utol" in str(info.value)
     with pytest.raises(SceneError) as info:
         parse_scene({"scene": {"fidelity": "ultra"}}, source="s.toml")
     assert "scene.fidelity" in str(info.value) and "'ultra'" in str(info.value)
