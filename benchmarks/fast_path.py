@@ -7,7 +7,7 @@
 Scene (`gesture`): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held to 0.3 s,
 lip and teeth contact on, lip aperture and protrusion recorded every 10 ms, at the
 `balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: substep error 1e-2 mm,
-substeps up to 5 ms, Newton 1e-6) on
+substeps up to 5 ms, Newton 1e-6 on the residual and 1e-4 mm on the last update) on
 
     a  the reference (ANSYS) face, full face (../shared/data/reference-face or
        $FACEFMU_REFERENCE_FACE; skipped where absent)      target 27 s wall for 0.3 s
@@ -30,8 +30,9 @@ criteria, so they must agree to a small multiple of the Newton tolerance). A run
 step fails after every cutback is reported (column failed) with its figures up to there.
 --profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.
---quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO where
-it installs; the FMU takes SuperLU). --md FILE writes the table as markdown too.
+--quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO in
+single precision where it installs; the FMU takes SuperLU). --md FILE writes the table as
+markdown too.
 
 Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
 every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
