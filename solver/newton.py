@@ -59,6 +59,19 @@ was the last one evaluated, is the next iterate's. A failed solve invalidates th
 factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
 every iterate.
 
+Partial refresh (``partial_refresh``; the default None: as reuse): where the system has
+nonsmooth terms (contact), a refactorization that replaces a factorization of a full
+assembly for the same key (convergence slowed, a stale step dropped, no descent)
+assembles only the nonsmooth terms' tangent at u_k (System.nonsmooth_tangent) and adds
+the rest of that full assembly's tangent (kept on the linear solver as the assembly minus
+its nonsmooth part): the factorized matrix is K_smooth(u_j) + K_contact(u_k). Within a
+substep the tissue's tangent changes little (without contact a substep converges on its
+first factorization at a rate of 0.02-0.04 per iteration) while the contact's is what
+slowed the iteration (docs/fast_path.md, session 12). Only within ``partial_reach`` (mm,
+the largest nodal displacement) of the full assembly's state: farther (a large jump, the
+bar of tests/test_fast_path.py) the tissue's tangent may be what went stale, and
+everything is assembled; a new key (the next substep) assembles everything too.
+
 Contact status (``contact_update``; the default None: in calls with a key, i.e. the
 substeps of solver.transient, as reuse): every direction, on a new or a reused
 factorization, is corrected for the contact status that the step predicts, by low-rank
@@ -107,6 +120,11 @@ class NewtonOptions:
     # BUC stalled at lam = 0.483 on the half face with the update and on the full face
     # without: a lip node released past a free edge of the teeth, a jump in force.)
     contact_update: bool | None = None
+    # Refactorize within a call (the factorization of this key slowed or its step failed)
+    # with the smooth terms' tangent of the call's last full assembly and only the
+    # nonsmooth terms' (contact) assembled anew; None: where reuse. Module docstring.
+    partial_refresh: bool | None = None
+    partial_reach: float = 0.05     # mm: partial refreshes within this of the full assembly
 
 
 @dataclass
@@ -250,6 +268,8 @@ def newton(system, u0, targets, lin, opts, key=None):
             opts = replace(opts, reuse=key is not None)
         if opts.contact_update is None:
             opts = replace(opts, contact_update=key is not None)
+        if opts.partial_refresh is None:
+            opts = replace(opts, partial_refresh=opts.reuse)
         u, r, report = _newton(system, u0, targets, lin, opts, (system.reduction, key))
     if u is None:
         lin.invalidate()
@@ -266,11 +286,28 @@ def _evaluate(system, u, need_k):
         return None, str(exc)
 
 
-def _factorize(system, lin, data, tag, report, u, contact):
+def _factorize(system, lin, data, tag, report, u, contact, full=True, opts=None):
+    """Factorize the tangent data (made at u) for tag; full: assembled whole at u, whose
+    part without the nonsmooth terms is then kept on lin for partial refreshes
+    (opts.partial_refresh), with u."""
     lin.refactor(system.reduction.matrix(data), tag)
     report.factorizations += 1
+    if full and opts is not None and opts.partial_refresh \
+            and any(t.nonsmooth for t in system.terms):
+        lin.smooth_tangent = (tag, data - system.nonsmooth_tangent(u), u.copy())
     if contact:
         contact.mark(lin, u)
+
+
+def _partial(system, lin, tag, u, reach):
+    """The tangent at u with the smooth terms' part of the last full assembly for tag and
+    the nonsmooth terms' part at u, or None where lin keeps no such part or that assembly
+    was made farther than reach (mm, max-norm) from u."""
+    kept = getattr(lin, "smooth_tangent", None)
+    if kept is None or kept[0][0] is not tag[0] or kept[0][1] != tag[1] \
+            or np.abs(u - kept[2]).max(initial=0.0) > reach:
+        return None
+    return kept[1] + system.nonsmooth_tangent(u)
 
 
 def _newton(system, u0, targets, lin, opts, tag):
@@ -366,16 +403,21 @@ def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, con
     (assembled if data is None: the residual is then evaluated again with it); corrected
     for the predicted contact status where contact (a ContactUpdate) is given."""
     fix = contact and not np.any(dup)
-    if _reusable(lin, opts, tag) and not slow and not np.any(dup):
+    reusable = _reusable(lin, opts, tag)
+    if reusable and not slow and not np.any(dup):
         du = _direction(system, r, None, dup, lin)
         du = contact.correct(lin, u, du) if fix else du
         if np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
             return du, data, True
+    full = data is not None
+    if data is None and reusable and opts.partial_refresh and not np.any(dup):
+        data = _partial(system, lin, tag, u, opts.partial_reach)
     if data is None:
         r2, data = _evaluate(system, u, True)
         if r2 is None:
             raise RuntimeError(data)
-    _factorize(system, lin, data, tag, report, u, contact)
+        full = True
+    _factorize(system, lin, data, tag, report, u, contact, full, opts)
     du = _direction(system, r, data, dup, lin)
     return (contact.correct(lin, u, du) if fix else du), data, False
 

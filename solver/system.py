@@ -28,7 +28,7 @@ class System:
         self.lam = 1.0
         self.t = 0.0
         self.extra = {}
-        self.counters = {"assemblies": 0, "residuals": 0}
+        self.counters = {"assemblies": 0, "residuals": 0, "partial_tangents": 0}
         self.term_seconds = {t.name: 0.0 for t in self.terms}     # time spent in each term
 
     def set_constraints(self, prescribed):
@@ -41,15 +41,18 @@ class System:
     def state(self, u):
         return State(u.reshape(-1, 3), self.lam, self.t, self.extra)
 
-    def _run(self, u, need_k):
+    def _run(self, u, need_k, nonsmooth_only=False):
         asm = Assembly(self.pattern, need_k)
         st = self.state(u)
         clock = time.perf_counter
         for term, ids in zip(self.terms, self._ids):
+            if nonsmooth_only and not term.nonsmooth:
+                continue
             t0 = clock()
             term.assemble(st, asm, ids)
             self.term_seconds[term.name] += clock() - t0
-        self.energy = asm.energy
+        if not nonsmooth_only:
+            self.energy = asm.energy
         return asm
 
     def assemble(self, u):
@@ -57,6 +60,12 @@ class System:
         self.counters["assemblies"] += 1
         asm = self._run(u, True)
         return asm.residual, asm.data
+
+    def nonsmooth_tangent(self, u):
+        """Tangent CSR data (nnz,) of the nonsmooth terms (contact) alone at u (ndof,);
+        Newton adds it to the rest of a tangent made earlier (solver.newton)."""
+        self.counters["partial_tangents"] += 1
+        return self._run(u, True, nonsmooth_only=True).data
 
     def residual(self, u):
         self.counters["residuals"] += 1

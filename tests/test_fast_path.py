@@ -298,6 +298,40 @@ def test_single_precision_pardiso_solves_to_its_precision_and_falls_back_to_doub
     assert np.linalg.norm(bad @ x - b) <= 1e-6 * np.linalg.norm(b)
 
 
+def test_partial_refresh_assembles_only_contact_within_a_call_and_reaches_the_same_state():
+    """Refactorizations within a Newton call take the smooth terms' tangent of the call's
+    full assembly and the contact's anew (NewtonOptions.partial_refresh): on the lip
+    gesture's first 0.03 s (coarse half face) fewer full assemblies than factorizations,
+    the contact's tangent alone assembled instead, and the same lip outputs as with a
+    full assembly at every factorization; with partial_reach 0 every refactorization away
+    from the full assembly's state assembles everything."""
+    from benchmarks.fast_path import gesture
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    runs = {}
+    for partial, reach in ((False, 0.05), (True, 0.05), (True, 0.0)):
+        sim = Simulation(parse_scene(gesture(0.03)), level="coarse", half=True)
+        sim.face.model.newton_options.partial_refresh = partial
+        sim.face.model.newton_options.partial_reach = reach
+        rows = []
+        sim.run(on_record=lambda s, row: rows.append(row))
+        sysm, lin = sim.face.model.system(), sim.face.model.linear_solver
+        runs[partial, reach] = (lin.factorizations, dict(sysm.counters), rows)
+        if partial:                     # the contact's part: nonzero where slaves touch
+            u = sim.face.u.ravel()
+            touching = any(t.n_active for t in sim.contact)
+            assert touching and np.abs(sysm.nonsmooth_tangent(u)).max() > 0.0
+        sim.release()
+    (f0, c0, rows0), (f1, c1, rows1) = runs[False, 0.05], runs[True, 0.05]
+    f2, c2, _ = runs[True, 0.0]
+    assert c0["assemblies"] == f0 and c0["partial_tangents"] == 0
+    assert c1["assemblies"] < f1 and c1["partial_tangents"] >= f1 - c1["assemblies"] > 0
+    assert c2["assemblies"] == f2
+    for a, b in zip(rows0, rows1):
+        assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < 1e-4
+        assert abs(a["lip_aperture"] - b["lip_aperture"]) < 1e-4
+
+
 def test_benchmark_knobs_parse_and_reach_their_objects():
     """benchmarks/fast_path.py --set: values typed, each group reaches its objects, a
     wrong group or a missing '=' is refused."""
