@@ -60,11 +60,11 @@ factorization. ``reuse = False`` is full Newton: the tangent assembled and facto
 every iterate.
 
 Partial refresh (``partial_refresh``; the default None: as reuse): where the system has
-nonsmooth terms (contact), a refactorization that replaces a factorization of a full
-assembly for the same key (convergence slowed, a stale step dropped, no descent)
-assembles only the nonsmooth terms' tangent at u_k (System.nonsmooth_tangent) and adds
-the rest of that full assembly's tangent (kept on the linear solver as the assembly minus
-its nonsmooth part): the factorized matrix is K_smooth(u_j) + K_contact(u_k). Within a
+nonsmooth terms (contact), a refactorization for a key that already has one (convergence
+slowed, a stale step dropped, no descent) assembles only the nonsmooth terms' tangent at
+u_k (System.nonsmooth_tangent) and adds the rest of the key's last full assembly at u_j
+(kept on the linear solver as that assembly minus its nonsmooth part): the factorized
+matrix is K_smooth(u_j) + K_contact(u_k). Within a
 substep the tissue's tangent changes little (without contact a substep converges on its
 first factorization at a rate of 0.02-0.04 per iteration) while the contact's is what
 slowed the iteration (docs/fast_path.md, session 12). Only within ``partial_reach`` (mm,
@@ -121,8 +121,9 @@ class NewtonOptions:
     # without: a lip node released past a free edge of the teeth, a jump in force.)
     contact_update: bool | None = None
     # Refactorize within a call (the factorization of this key slowed or its step failed)
-    # with the smooth terms' tangent of the call's last full assembly and only the
-    # nonsmooth terms' (contact) assembled anew; None: where reuse. Module docstring.
+    # with the smooth terms' tangent of the key's last full assembly, if made within
+    # partial_reach, and only the nonsmooth terms' (contact) assembled anew; None: where
+    # reuse. Module docstring.
     partial_refresh: bool | None = None
     partial_reach: float = 0.05     # mm: partial refreshes within this of the full assembly
 
