@@ -162,9 +162,9 @@ class _Handle:
     in double or single precision (iparm(28) = 1: the matrix, the right-hand sides and the
     solutions in float32). Conditional numerical reproducibility (iparm(34), MKL's thread
     count): the same matrix factorizes to the same bits every time. Without it a single
-    factorization of case b's tangent, made again on the same handle, solved 5e-5 mm
-    differently now and then (double: 1e-13 mm), and a step repeated from the same state
-    (solver.transient: an FMU rollback) did not repeat exactly."""
+    factorization of case b's tangent, made again on the same handle, now and then gave
+    solutions of order one that differed by 5e-5 (double: 1e-13), so that a step repeated
+    from the same state (solver.transient: an FMU rollback) did not repeat exactly."""
 
     def __init__(self, single):
         import pypardiso
@@ -201,13 +201,12 @@ class _Handle:
     def factorize(self, U, key):
         """Analyse U's pattern where it is new (phase 11), then factorize (phase 22)."""
         n = U.shape[0]
+        self.a = U.data.astype(self.dtype)
         if key != self.pattern:
             self.ia = (U.indptr + 1).astype(np.int32)
             self.ja = (U.indices + 1).astype(np.int32)
-            self.a = U.data.astype(self.dtype)
             self.call(11, n, np.zeros(n))
             self.pattern = key
-        self.a = U.data.astype(self.dtype)
         self.call(22, n, np.zeros(n))
 
     @property
