@@ -79,6 +79,16 @@ updates of the factorization (solver.contact_update): a slave that the step woul
 into a master meets its contact stiffness in this direction already instead of at the
 next iterate, after a line search cut short at its kink. The residual, the line search and
 the convergence criteria are unchanged.
+
+Krylov directions (``krylov``; the default None: as contact_update): on a reused
+factorization the direction solves the tangent with the contact terms' part at u_k (and
+the status that the step predicts) by GMRES preconditioned with the factorization, its
+earlier solves recycled (solver.krylov), instead of the plain modified Newton step and
+its status correction; it is searched along like a new factorization's direction, and
+where GMRES does not reach its tolerance within its budget of solves the tangent is
+refactorized. It trades factorizations for solves, which pays where a factorization
+costs many solves: on the reference face about 85 against 12 ms (docs/fast_path.md,
+session 13).
 """
 
 from dataclasses import dataclass, field, replace
@@ -86,6 +96,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .contact_update import ContactUpdate
+from .krylov import KrylovDirection
 from .linsolve import single_threaded_blas
 from .terms.base import InvertedElement
 
@@ -126,6 +137,11 @@ class NewtonOptions:
     # reuse. Module docstring.
     partial_refresh: bool | None = None
     partial_reach: float = 0.05     # mm: partial refreshes within this of the full assembly
+    # On a reused factorization, solve with the contact terms' tangent at the iterate by
+    # GMRES preconditioned with the factorization (solver.krylov) instead of the plain
+    # modified Newton step, where the system has contact terms and reuse is on; None: as
+    # contact_update. Module docstring.
+    krylov: bool | None = None
 
 
 @dataclass
@@ -136,6 +152,7 @@ class NewtonReport:
     reason: str = ""
     factorizations: int = 0
     stale_steps: int = 0            # reused factorizations' steps dropped for a new one
+    krylov_steps: int = 0           # directions by GMRES on a reused factorization
 
 
 class NewtonFailure(Exception):
@@ -271,6 +288,8 @@ def newton(system, u0, targets, lin, opts, key=None):
             opts = replace(opts, contact_update=key is not None)
         if opts.partial_refresh is None:
             opts = replace(opts, partial_refresh=opts.reuse)
+        if opts.krylov is None:
+            opts = replace(opts, krylov=opts.contact_update)
         u, r, report = _newton(system, u0, targets, lin, opts, (system.reduction, key))
     if u is None:
         lin.invalidate()
@@ -287,28 +306,36 @@ def _evaluate(system, u, need_k):
         return None, str(exc)
 
 
-def _factorize(system, lin, data, tag, report, u, contact, full=True, opts=None):
+def _factorize(system, lin, data, tag, report, u, contact, full=True, opts=None, kc=None,
+               krylov=None):
     """Factorize the tangent data (made at u) for tag; full: assembled whole at u, whose
     part without the nonsmooth terms is then kept on lin for partial refreshes
-    (opts.partial_refresh), with u."""
+    (opts.partial_refresh), with u; kc: the nonsmooth terms' part at u where known
+    (recorded for krylov's directions)."""
     lin.refactor(system.reduction.matrix(data), tag)
     report.factorizations += 1
-    if full and opts is not None and opts.partial_refresh \
-            and any(t.nonsmooth for t in system.terms):
-        lin.smooth_tangent = (tag, data - system.nonsmooth_tangent(u), u.copy())
+    keep = full and opts is not None and opts.partial_refresh \
+        and any(t.nonsmooth for t in system.terms)
+    if kc is None and (keep or krylov):
+        kc = system.nonsmooth_tangent(u)
+    if keep:
+        lin.smooth_tangent = (tag, data - kc, u.copy())
+    if krylov:
+        krylov.mark(lin, kc)
     if contact:
         contact.mark(lin, u)
 
 
 def _partial(system, lin, tag, u, reach):
-    """The tangent at u with the smooth terms' part of the last full assembly for tag and
-    the nonsmooth terms' part at u, or None where lin keeps no such part or that assembly
-    was made farther than reach (mm, max-norm) from u."""
+    """(tangent, its nonsmooth part) at u with the smooth terms' part of the last full
+    assembly for tag and the nonsmooth terms' part at u, or None where lin keeps no such
+    part or that assembly was made farther than reach (mm, max-norm) from u."""
     kept = getattr(lin, "smooth_tangent", None)
     if kept is None or kept[0][0] is not tag[0] or kept[0][1] != tag[1] \
             or np.abs(u - kept[2]).max(initial=0.0) > reach:
         return None
-    return kept[1] + system.nonsmooth_tangent(u)
+    kc = system.nonsmooth_tangent(u)
+    return kept[1] + kc, kc
 
 
 def _newton(system, u0, targets, lin, opts, tag):
@@ -316,6 +343,8 @@ def _newton(system, u0, targets, lin, opts, tag):
     prescribed = system.prescribed
     report = NewtonReport(False, 0)
     contact = ContactUpdate(system) if opts.contact_update else None
+    krylov = KrylovDirection.of(system) if opts.krylov and opts.reuse else None
+    krylov = krylov if krylov else None            # no contact terms: plain reuse
     step_size = np.inf                      # of the last update (none yet)
     r, data = _evaluate(system, u, not _reusable(lin, opts, tag))
     for it in range(opts.max_iter + 1):
@@ -348,13 +377,13 @@ def _newton(system, u0, targets, lin, opts, tag):
         slow = it > 0 and not balanced and _slow(rn, report.residuals[it - 1],
                                                  opts.rtol * ref + opts.atol, it, opts)
         try:
-            du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, slow,
-                                       balanced, report, contact)
+            du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, slow,
+                                     balanced, report, contact, krylov)
             line = _Line(system, u, du)
-            if reused and not _full_step_taken(line, r, balanced):
+            if mode == "reused" and not _full_step_taken(line, r, balanced):
                 report.stale_steps += 1
-                du, data, reused = _update(system, u, r, data, dup, lin, opts, tag, True,
-                                           balanced, report, contact)
+                du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, True,
+                                         balanced, report, contact, krylov)
                 line = _Line(system, u, du)
         except RuntimeError as exc:           # singular factorization
             report.reason = f"linear solver failed: {exc}"
@@ -362,7 +391,7 @@ def _newton(system, u0, targets, lin, opts, tag):
         if not np.all(np.isfinite(du)):
             report.reason = "linear solve gave a non-finite update (singular tangent?)"
             return None, None, report
-        if reused:
+        if mode == "reused":
             s = 1.0
         elif np.any(dup):
             s = _admissible_fraction(line, opts)
@@ -397,30 +426,39 @@ def _reusable(lin, opts, tag):
     return opts.reuse and lin.tag is not None and lin.tag[0] is tag[0] and lin.tag[1] == tag[1]
 
 
-def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, contact):
-    """(du, data, reused): Newton's update at u, on a reused factorization where that is
+def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, contact,
+            krylov=None):
+    """(du, data, mode): Newton's update at u, on a reused factorization where that is
     allowed (module docstring; balanced: the force criterion holds, so that r is at the
     level of rounding and du . r may have any sign), else on a new one of the tangent at u
     (assembled if data is None: the residual is then evaluated again with it); corrected
-    for the predicted contact status where contact (a ContactUpdate) is given."""
+    for the predicted contact status where contact (a ContactUpdate) is given. On a reused
+    factorization with krylov (a KrylovDirection) the direction is its GMRES solution with
+    the contact's tangent at u. mode: "reused", "krylov" or "new"."""
     fix = contact and not np.any(dup)
     reusable = _reusable(lin, opts, tag)
     if reusable and not slow and not np.any(dup):
-        du = _direction(system, r, None, dup, lin)
-        du = contact.correct(lin, u, du) if fix else du
-        if np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
-            return du, data, True
-    full = data is not None
+        if krylov:
+            du = krylov.direction(lin, u, r)
+            mode = "krylov"
+        else:
+            du = _direction(system, r, None, dup, lin)
+            du = contact.correct(lin, u, du) if fix else du
+            mode = "reused"
+        if du is not None and np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
+            report.krylov_steps += mode == "krylov"
+            return du, data, mode
+    full, kc = data is not None, None
     if data is None and reusable and opts.partial_refresh and not np.any(dup):
-        data = _partial(system, lin, tag, u, opts.partial_reach)
+        data, kc = _partial(system, lin, tag, u, opts.partial_reach) or (None, None)
     if data is None:
         r2, data = _evaluate(system, u, True)
         if r2 is None:
             raise RuntimeError(data)
         full = True
-    _factorize(system, lin, data, tag, report, u, contact, full, opts)
+    _factorize(system, lin, data, tag, report, u, contact, full, opts, kc, krylov)
     du = _direction(system, r, data, dup, lin)
-    return (contact.correct(lin, u, du) if fix else du), data, False
+    return (contact.correct(lin, u, du) if fix else du), data, "new"
 
 
 def _full_step_stands(g0, g1, n0, r1, balanced=False):
