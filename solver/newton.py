@@ -80,15 +80,17 @@ into a master meets its contact stiffness in this direction already instead of a
 next iterate, after a line search cut short at its kink. The residual, the line search and
 the convergence criteria are unchanged.
 
-Krylov directions (``krylov``; the default None: as contact_update): on a reused
-factorization the direction solves the tangent with the contact terms' part at u_k (and
-the status that the step predicts) by GMRES preconditioned with the factorization, its
-earlier solves recycled (solver.krylov), instead of the plain modified Newton step and
-its status correction; it is searched along like a new factorization's direction, and
-where GMRES does not reach its tolerance within its budget of solves the tangent is
-refactorized. It trades factorizations for solves, which pays where a factorization
-costs many solves: on the reference face about 85 against 12 ms (docs/fast_path.md,
-session 13).
+Krylov directions (``krylov``; the default None: as contact_update): where a reused
+factorization's plain direction would not do (convergence slowed, its full step failed,
+or no descent), before refactorizing, the direction solves the tangent with the contact
+terms' part at u_k (and the status that the step predicts) by GMRES preconditioned with
+the factorization, its earlier solves recycled (solver.krylov); it is searched along like
+a new factorization's direction, and where GMRES does not reach its tolerance within its
+budget of solves the tangent is refactorized. It trades factorizations for solves:
+benchmarks/fast_path.py (docs/fast_path.md, session 13) case a 400 -> 144
+factorizations and about 15 % less time, case b with SuperLU 182 -> 111 and 21 % less,
+case b with single-precision PARDISO, whose factorization costs only six or seven solves,
+about 6 % more.
 """
 
 from dataclasses import dataclass, field, replace
@@ -137,9 +139,9 @@ class NewtonOptions:
     # reuse. Module docstring.
     partial_refresh: bool | None = None
     partial_reach: float = 0.05     # mm: partial refreshes within this of the full assembly
-    # On a reused factorization, solve with the contact terms' tangent at the iterate by
-    # GMRES preconditioned with the factorization (solver.krylov) instead of the plain
-    # modified Newton step, where the system has contact terms and reuse is on; None: as
+    # Where a reused factorization's direction would not do, solve with the contact terms'
+    # tangent at the iterate by GMRES preconditioned with the factorization (solver.krylov)
+    # before refactorizing, where the system has contact terms and reuse is on; None: as
     # contact_update. Module docstring.
     krylov: bool | None = None
 
@@ -381,7 +383,7 @@ def _newton(system, u0, targets, lin, opts, tag):
                                      balanced, report, contact, krylov)
             line = _Line(system, u, du)
             if mode == "reused" and not _full_step_taken(line, r, balanced):
-                report.stale_steps += 1
+                report.stale_steps += 1         # a Krylov direction or a new tangent
                 du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, True,
                                          balanced, report, contact, krylov)
                 line = _Line(system, u, du)
@@ -432,22 +434,24 @@ def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, con
     allowed (module docstring; balanced: the force criterion holds, so that r is at the
     level of rounding and du . r may have any sign), else on a new one of the tangent at u
     (assembled if data is None: the residual is then evaluated again with it); corrected
-    for the predicted contact status where contact (a ContactUpdate) is given. On a reused
-    factorization with krylov (a KrylovDirection) the direction is its GMRES solution with
-    the contact's tangent at u. mode: "reused", "krylov" or "new"."""
+    for the predicted contact status where contact (a ContactUpdate) is given. With krylov
+    (a KrylovDirection), where the reused factorization's plain direction would not do
+    (slow, or no descent), its GMRES solution with the contact's tangent at u before a
+    new factorization. mode: "reused", "krylov" or "new"."""
     fix = contact and not np.any(dup)
     reusable = _reusable(lin, opts, tag)
-    if reusable and not slow and not np.any(dup):
-        if krylov:
-            du = krylov.direction(lin, u, r)
-            mode = "krylov"
-        else:
-            du = _direction(system, r, None, dup, lin)
-            du = contact.correct(lin, u, du) if fix else du
-            mode = "reused"
-        if du is not None and np.all(np.isfinite(du)) and (balanced or float(du @ r) < 0.0):
-            report.krylov_steps += mode == "krylov"
-            return du, data, mode
+    if reusable and not np.any(dup):
+        tries = ([] if slow else ["reused"]) + (["krylov"] if krylov else [])
+        for mode in tries:
+            if mode == "krylov":
+                du = krylov.direction(lin, u, r)
+            else:
+                du = _direction(system, r, None, dup, lin)
+                du = contact.correct(lin, u, du) if fix else du
+            if du is not None and np.all(np.isfinite(du)) \
+                    and (balanced or float(du @ r) < 0.0):
+                report.krylov_steps += mode == "krylov"
+                return du, data, mode
     full, kc = data is not None, None
     if data is None and reusable and opts.partial_refresh and not np.any(dup):
         data, kc = _partial(system, lin, tag, u, opts.partial_reach) or (None, None)

@@ -77,8 +77,8 @@ def test_recycled_directions_solve_a_nearby_system_with_fewer_solves(rng):
 def test_krylov_directions_save_factorizations_and_reach_the_same_state():
     """On the lip gesture's first 0.05 s (coarse half face, lip and teeth contact) GMRES
     directions with the contact's current tangent replace some refactorizations of the
-    modified Newton and fewer residuals are evaluated; the lip outputs are those of the
-    plain reuse to the Newton tolerance."""
+    modified Newton (at the price of solves, and of line searches along them); the lip
+    outputs are those of the plain reuse to the Newton tolerance."""
     from benchmarks.fast_path import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
@@ -88,11 +88,10 @@ def test_krylov_directions_save_factorizations_and_reach_the_same_state():
         sim.face.model.newton_options.krylov = on
         rows = []
         sim.run(on_record=lambda s, row: rows.append(row))
-        runs[on] = (sim.face.model.linear_solver.factorizations,
-                    sim.face.model.system().counters["residuals"], rows)
+        runs[on] = (sim.face.model.linear_solver.factorizations, rows)
         sim.release()
-    (f0, r0, rows0), (f1, r1, rows1) = runs[False], runs[True]
-    assert f1 < f0 and r1 < r0
+    (f0, rows0), (f1, rows1) = runs[False], runs[True]
+    assert f1 < 0.9 * f0
     assert len(rows0) == len(rows1)
     for a, b in zip(rows0, rows1):
         assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < 1e-4
