@@ -57,7 +57,7 @@ class FaceModel:
                                          self.properties.stiffening_rule)
                 self.stiffening = Stiffening(mesh, self.model.elasticity.params,
                                              self.regions, self.properties, self.activation,
-                                             weights)
+                                             weights, host=self.model.elasticity)
                 self.model.add_term(self.stiffening)
 
     @property

@@ -108,6 +108,37 @@ def test_stiffening_neighbourhood_and_factor():
     assert np.allclose(st.factors(1.0), 1 + 0.5 * (props.stiffening_max - 1))
 
 
+@pytest.mark.parametrize("a", [0.0, 0.6])
+def test_stiffening_in_the_tissues_pass_equals_its_own_pass(a, rng):
+    """With the tissue's Elasticity as host the extra c10, c20 go into the tissue's kernel
+    pass: residual, tangent and energy as with the stiffening's own pass over its bricks
+    (isochoric, full F at the Gauss points), and the term has no blocks of its own."""
+    from solver.terms.elasticity import Elasticity
+    anat = _anatomy([[0.5, 1.0, 1.0], [7.5, 1.0, 1.0]])     # through one column of bricks
+    mesh = anat.mesh
+    regions = muscle_neighbourhoods(anat, ["OOP"], {"OOP": 0.5})
+    params = np.tile(solver.MooneyRivlin().params, (mesh.n_bricks, 1))
+    u = 0.3 * rng.standard_normal(3 * mesh.n_nodes)
+    out = []
+    for fused in (False, True):
+        act = Activation()
+        act.set({"OOP": a})
+        el = Elasticity(mesh, params)
+        st = Stiffening(mesh, params, regions, MuscleProperties(), act,
+                        host=el if fused else None)
+        assert (len(st.blocks()) == 0) == fused and 0 < len(regions["OOP"]) < mesh.n_bricks
+        sysm = System([el, st], mesh.n_nodes, [])
+        r, data = sysm.assemble(u)
+        out.append((r, sysm.pattern.matrix(data).toarray(), sysm.energy))
+        assert np.array_equal(el.params, params)            # the tissue's own unchanged
+    (r0, k0, e0), (r1, k1, e1) = out
+    assert np.allclose(r1, r0, rtol=0, atol=1e-12 * np.abs(r0).max())
+    assert np.allclose(k1, k0, rtol=0, atol=1e-12 * np.abs(k0).max())
+    assert e1 == pytest.approx(e0, rel=1e-12)
+    plain = System([Elasticity(mesh, params)], mesh.n_nodes, []).residual(u)
+    assert (np.abs(r1 - plain).max() > 1e-3 * np.abs(plain).max()) == (a > 0)
+
+
 def test_stiffened_tissue_deforms_less_and_is_stiffer_transversely():
     """The paper's Eq. 2 argument: the transverse stiffness of an active region rises."""
     mesh = box(6, 2, 2, (12.0, 4.0, 4.0))

@@ -15,6 +15,9 @@ class Elasticity(Term):
     formulation  'mean_dilatation' (default, locking-free) or 'full'
     subset       optional brick indices (k,): the term covers only those bricks, and
                  params is then (k, 6) or (6,)
+    modifiers    terms that add to the parameters of some of its bricks in its own pass
+                 (their ``added_params(lam)`` -> (positions (j,), dparams (j, 6)) or None;
+                 solver.terms.stiffening with a host)
     """
 
     name = "elasticity"
@@ -38,12 +41,23 @@ class Elasticity(Term):
         self._energy = np.empty(m)
         self._jmin = np.empty(m)
         self.min_det_f = 1.0
+        self.modifiers = []
+
+    def _params(self, lam):
+        """(m, 6) the parameters of this pass: params plus what the modifiers add."""
+        params = self.params
+        for mod in self.modifiers:
+            added = mod.added_params(lam)
+            if added is not None:
+                params = params.copy() if params is self.params else params
+                params[added[0]] += added[1]
+        return params
 
     def blocks(self):
         return [self.bricks]
 
     def assemble(self, state, asm, block_ids):
-        brick_forces(state.u, self.bricks, self._dndX, self._w, self.params, self.form,
+        brick_forces(state.u, self.bricks, self._dndX, self._w, self._params(state.lam), self.form,
                      asm.need_k, self._fe, self._ke, self._energy, self._jmin)
         e = int(np.argmin(self._jmin))
         self.min_det_f = float(self._jmin[e])

@@ -103,13 +103,23 @@ def muscle_neighbourhoods(anatomy, muscles, radii):
 
 
 class Stiffening(Elasticity):
-    """Extra isochoric stiffness (k_e - 1) (c10, c20) on the bricks near driven muscles."""
+    """Extra isochoric stiffness (k_e - 1) (c10, c20) on the bricks near driven muscles.
+
+    host: the tissue's Elasticity term over every brick, or None. With a host the extra
+    c10, c20 are added to the host's parameters of those bricks in the host's own kernel
+    pass (W_iso is linear in c10 and c20, and the isochoric part is integrated at the
+    Gauss points with the full F in both formulations, solver.kernels.brick): the same
+    residual and tangent to rounding without a second pass over the bricks, which cost
+    1.2 ms of 13 ms per residual on case b of benchmarks/fast_path.py (scratch timing,
+    session 13). This term then has no blocks and assembles nothing itself."""
 
     name = "stiffening"
 
-    def __init__(self, mesh, base_params, regions, properties, activation, weights=None):
+    def __init__(self, mesh, base_params, regions, properties, activation, weights=None,
+                 host=None):
         """base_params (m, 6) of the tissue; regions: muscle -> brick indices; weights:
-        muscle -> (k,) weight of each region brick (default 1: the paper's rule)."""
+        muscle -> (k,) weight of each region brick (default 1: the paper's rule); host:
+        the tissue's Elasticity term (class docstring) or None."""
         subset = np.unique(np.concatenate([np.zeros(0, np.int64)] + list(regions.values())))
         super().__init__(mesh, np.zeros(6), "full", subset)
         self.properties, self.activation = properties, activation
@@ -122,15 +132,37 @@ class Stiffening(Elasticity):
             w = np.ones(len(bricks)) if weights is None else weights[m]
             self.weight[[pos[b] for b in bricks], MUSCLE_NAMES.index(m)] = w
         self.regions = regions
+        self.host = host
+        if host is not None:
+            if len(host.subset) != mesh.n_bricks:
+                raise ValueError("a stiffening host must cover every brick")
+            where = np.empty(mesh.n_bricks, dtype=np.int64)
+            where[host.subset] = np.arange(mesh.n_bricks)
+            self._pos = where[subset]
+            host.modifiers.append(self)
 
     def factors(self, lam):
         """(k,) stiffening factor of each brick of the subset at load factor lam."""
         k = self.properties.stiffening_factor(self.activation.at(lam))       # (10,)
         return (1.0 + self.weight * (k[None, :] - 1.0)).max(axis=1)
 
+    def added_params(self, lam):
+        """(positions in the host (k,), added parameters (k, 6)) at load factor lam, or
+        None where no brick is stiffened."""
+        f = self.factors(lam) - 1.0
+        if not np.any(f > 0.0):
+            return None
+        added = np.zeros((len(f), 6))
+        added[:, 0] = f * self._c[:, 0]
+        added[:, 2] = f * self._c[:, 1]
+        return self._pos, added
+
+    def blocks(self):
+        return [] if self.host is not None else super().blocks()
+
     def assemble(self, state, asm, block_ids):
         f = self.factors(state.lam) - 1.0
-        if not np.any(f > 0.0):
+        if self.host is not None or not np.any(f > 0.0):
             return
         self.params[:, 0] = f * self._c[:, 0]
         self.params[:, 2] = f * self._c[:, 1]
