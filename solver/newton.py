@@ -88,9 +88,9 @@ the factorization, its earlier solves recycled (solver.krylov); it is searched a
 a new factorization's direction, and where GMRES does not reach its tolerance within its
 budget of solves the tangent is refactorized. It trades factorizations for solves:
 benchmarks/fast_path.py (docs/fast_path.md, session 13) case a 400 -> 144
-factorizations and about 15 % less time, case b with SuperLU 182 -> 111 and 21 % less,
-case b with single-precision PARDISO, whose factorization costs only six or seven solves,
-about 6 % more.
+factorizations and 1-16 % less time, case b 182 -> 111 and a fifth less time with SuperLU,
+between 6 % more and 13 % less with single-precision PARDISO (whose factorization costs
+only six or seven solves), depending on the hour.
 """
 
 from dataclasses import dataclass, field, replace
