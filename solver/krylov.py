@@ -24,6 +24,13 @@ v_j + D z_j: one solve and one product with D per iteration, and the direction f
 kept Z without another solve. The iteration stops when ||c - (A + D) du|| <= rtol ||c||
 (the product A Z taken as V: to the factorization's precision). Where it does not within
 maxiter, no direction is returned and Newton refactorizes.
+
+Recycling (GCRO augmentation): the pairs (Z, A Z) solved for earlier directions on the
+same factorization (at most ``recycle``, the newest) span most of what the next, nearby D
+needs. The residual is first minimized over span((A + D) Z) = span(A Z + D Z), which
+costs products with D and a QR, no solve; the Arnoldi vectors that follow are kept
+orthogonal to that span, and the new pairs join the kept ones. Newton uses these
+directions only where the reused factorization's plain one would not do (solver.newton).
 """
 
 import numpy as np
