@@ -20,15 +20,19 @@ def _low_rank(n, rng, rank, scale):
     return (scale * (W @ W.T)).tocsr()
 
 
-def test_gmres_solves_the_perturbed_system_with_the_factorizations_solves(rng):
-    """(A + D) du = c to the tolerance from A's solves alone, in few iterations for a
-    low-rank D, and A du kept consistent with du."""
-    n = 300
-    A, D = _spd(n, rng), _low_rank(n, rng, 4, 50.0)
+def _factorized(n, rng, rank, scale):
+    """(A, D, solver factorized with A, c, A^-1 c): an SPD A, a low-rank D, a random c."""
+    A, D = _spd(n, rng), _low_rank(n, rng, rank, scale)
     lin = SuperLU()
     lin.refactor(A, "t")
     c = rng.standard_normal(n)
-    du0 = lin.solve(c)
+    return A, D, lin, c, lin.solve(c)
+
+
+def test_gmres_solves_the_perturbed_system_with_the_factorizations_solves(rng):
+    """(A + D) du = c to the tolerance from A's solves alone, in few iterations for a
+    low-rank D, and A du kept consistent with du."""
+    A, D, lin, c, du0 = _factorized(300, rng, 4, 50.0)
     du, Adu, solves, _ = gmres(lin.solve, D, c, du0, c.copy(), 1e-8, 30)
     exact = sp.linalg.spsolve((A + D).tocsc(), c)
     assert np.linalg.norm((A + D) @ du - c) <= 1e-7 * np.linalg.norm(c)
@@ -42,12 +46,7 @@ def test_gmres_solves_the_perturbed_system_with_the_factorizations_solves(rng):
 def test_gmres_gives_up_within_its_budget_and_keeps_a_good_start(rng):
     """A start that already meets the tolerance costs no solve; a budget too small for the
     tolerance returns no direction (Newton then refactorizes)."""
-    n = 200
-    A, D = _spd(n, rng), _low_rank(n, rng, 10, 100.0)
-    lin = SuperLU()
-    lin.refactor(A, "t")
-    c = rng.standard_normal(n)
-    du0 = lin.solve(c)
+    A, D, lin, c, du0 = _factorized(200, rng, 10, 100.0)
     assert gmres(lin.solve, D, c, du0, c.copy(), 1e-12, 2)[0] is None
     du, _, _, _ = gmres(lin.solve, D, c, du0, c.copy(), 1e-10, 60)
     again = gmres(lin.solve, D, c, du, (A @ du), 1e-8, 5)

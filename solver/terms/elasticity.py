@@ -57,8 +57,8 @@ class Elasticity(Term):
         return [self.bricks]
 
     def assemble(self, state, asm, block_ids):
-        brick_forces(state.u, self.bricks, self._dndX, self._w, self._params(state.lam), self.form,
-                     asm.need_k, self._fe, self._ke, self._energy, self._jmin)
+        brick_forces(state.u, self.bricks, self._dndX, self._w, self._params(state.lam),
+                     self.form, asm.need_k, self._fe, self._ke, self._energy, self._jmin)
         e = int(np.argmin(self._jmin))
         self.min_det_f = float(self._jmin[e])
         if not self.min_det_f > 0.0:
