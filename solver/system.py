@@ -28,7 +28,8 @@ class System:
         self.lam = 1.0
         self.t = 0.0
         self.extra = {}
-        self.counters = {"assemblies": 0, "residuals": 0, "partial_tangents": 0}
+        self.counters = {"assemblies": 0, "residuals": 0, "partial_tangents": 0,
+                         "nonsmooth_residuals": 0}
         self.term_seconds = {t.name: 0.0 for t in self.terms}     # time spent in each term
 
     def set_constraints(self, prescribed):
@@ -66,6 +67,12 @@ class System:
         Newton adds it to the rest of a tangent made earlier (solver.newton)."""
         self.counters["partial_tangents"] += 1
         return self._run(u, True, nonsmooth_only=True).data
+
+    def nonsmooth_residual(self, u):
+        """The residual (ndof,) of the nonsmooth terms (contact) alone at u (ndof,), for
+        Newton's line search (solver.newton); zeros where there are none."""
+        self.counters["nonsmooth_residuals"] += 1
+        return self._run(u, False, nonsmooth_only=True).residual
 
     def residual(self, u):
         self.counters["residuals"] += 1
