@@ -98,8 +98,8 @@ def test_the_norm_tests_see_the_free_dofs_not_the_reactions():
 
 def test_secant_search_saves_residuals_and_reaches_the_same_state():
     """On the lip gesture's first 0.11 s (coarse half face, lip and teeth contact, where
-    the lips close) the search on the secant model takes fewer whole residuals for the same lip outputs (to
-    the Newton tolerance)."""
+    the lips close) the search on the secant model takes fewer whole residuals for the
+    same lip outputs (to the Newton tolerance)."""
     from benchmarks.fast_path import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
