@@ -24,32 +24,48 @@ class Pattern:
 
     blocks   list of (k, nloc) int arrays
     After construction: indptr, indices, nnz, and index[b] (k, d, d) for each block b.
+    Every block couples all three DOFs of its nodes, so the pattern is that of the node
+    pairs with each pair a 3 x 3 block, and is built so: a unique over the node pairs
+    (a ninth of the DOF pairs; 0.15 s against 2.1 s over the DOF pairs on the reference
+    face). Every node keeps its diagonal 3 x 3 block, in a block or not.
     """
 
     def __init__(self, ndof, blocks):
         self.ndof = ndof
-        dofs = [block_dofs(b) for b in blocks]
-        rows = [np.repeat(d, d.shape[1], axis=1).ravel() for d in dofs]
-        cols = [np.tile(d, (1, d.shape[1])).ravel() for d in dofs]
-        diag = np.arange(ndof, dtype=np.int64)          # keep the diagonal for every DOF
-        r = np.concatenate(rows + [diag])
-        c = np.concatenate(cols + [diag])
-        key = r * ndof + c
-        ukey, inv = np.unique(key, return_inverse=True)
-        ur, uc = ukey // ndof, ukey % ndof
-        self.indices = uc.astype(np.int32)
-        self.indptr = np.zeros(ndof + 1, dtype=np.int32)
-        np.cumsum(np.bincount(ur, minlength=ndof), out=self.indptr[1:])
-        self.nnz = len(ukey)
-        self._keys = ukey
-        self.diagonal = self.locate(diag, diag)                          # (ndof,) data index
-        self.dofs = dofs
+        n = ndof // 3
+        conns = [np.asarray(b, dtype=np.int64) for b in blocks]
+        self.dofs = [block_dofs(b) for b in conns]
+        # the node pairs first (a ninth of the DOF pairs), then each as its 3 x 3 block
+        diag = np.arange(n, dtype=np.int64)         # every node's block: the DOF diagonal
+        a = np.concatenate([np.repeat(b, b.shape[1], axis=1).ravel() for b in conns] + [diag])
+        b = np.concatenate([np.tile(b, (1, b.shape[1])).ravel() for b in conns] + [diag])
+        pairs, inv = np.unique(a * n + b, return_inverse=True)
+        first, second = pairs // n, pairs % n
+        deg = np.bincount(first, minlength=n)
+        start = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(deg, out=start[1:])
+        # DOF row 3 I + i holds the 3 deg(I) columns 3 J + j of I's neighbours J (sorted):
+        # entry (3 I + i, 3 J + j) at 9 start(I) + 3 deg(I) i + 3 pos(I, J) + j
+        i3 = np.arange(3)
+        base = 9 * start[first] + 3 * (np.arange(len(pairs)) - start[first])   # (P,)
+        at = base[:, None, None] + 3 * deg[first][:, None, None] * i3[:, None] + i3  # (P,3,3)
+        self.nnz = 9 * len(pairs)
+        self.indices = np.empty(self.nnz, dtype=np.int32)
+        self.indices[at.ravel()] = np.repeat(3 * second[:, None] + i3, 3, axis=0).ravel()
+        self.indptr = np.empty(ndof + 1, dtype=np.int32)
+        self.indptr[:-1] = (9 * start[:-1, None] + 3 * deg[:, None] * i3).ravel()
+        self.indptr[-1] = self.nnz
+        self._keys = np.repeat(np.arange(ndof, dtype=np.int64), np.diff(self.indptr)) * ndof \
+            + self.indices
+        self.diagonal = self.locate(np.arange(ndof), np.arange(ndof))     # (ndof,) data index
         self.index = []
-        start = 0
-        for d in dofs:
-            n = d.shape[0] * d.shape[1] ** 2
-            self.index.append(inv[start:start + n].reshape(d.shape[0], d.shape[1], d.shape[1]))
-            start += n
+        offset = 0
+        for c in conns:
+            k, m = c.shape
+            p = inv[offset:offset + k * m * m]
+            offset += k * m * m
+            self.index.append(at[p].reshape(k, m, m, 3, 3).transpose(0, 1, 3, 2, 4)
+                              .reshape(k, 3 * m, 3 * m))
 
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.ndof, self.ndof))

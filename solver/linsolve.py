@@ -167,7 +167,7 @@ class _Handle:
     from the same state (solver.transient: an FMU rollback) did not repeat exactly."""
 
     def __init__(self, single):
-        import pypardiso
+        pypardiso = _pypardiso()
         self.p = pypardiso.PyPardisoSolver(mtype=-2)
         for i, value in IPARM.items():
             self.p.set_iparm(i, value)
@@ -326,11 +326,30 @@ class Pardiso(_Reusable):
             pass
 
 
+def _pypardiso():
+    """The pypardiso module, imported with PYPARDISO_MKL_RT set to the mkl package's
+    libmkl_rt where the user did not set it: pypardiso looks the library up by name, which
+    fails for a pip install's, and then globs all of sys.prefix for it at its import (and
+    for each solver it makes), 1.0-1.2 s here, inside the first step of a run."""
+    if "PYPARDISO_MKL_RT" not in os.environ:
+        from importlib import metadata
+        try:
+            libs = [f.locate().resolve() for f in metadata.files("mkl") or ()
+                    if f.name.startswith(("libmkl_rt", "mkl_rt"))]
+        except metadata.PackageNotFoundError:
+            libs = []
+        libs = sorted((p for p in libs if p.is_file()), key=lambda p: len(str(p)))
+        if libs:
+            os.environ["PYPARDISO_MKL_RT"] = str(libs[0])
+    import pypardiso
+    return pypardiso
+
+
 def available():
     """Names of the solvers that import here, the fastest first."""
     names = ["superlu"]
     try:
-        import pypardiso  # noqa: F401
+        _pypardiso()
         names[:0] = ["pardiso-single", "pardiso"]
     except ImportError:
         pass

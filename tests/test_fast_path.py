@@ -222,6 +222,23 @@ def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
 
 
 @pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
+def test_pardiso_loads_mkl_without_searching_the_file_system():
+    """pypardiso globs all of sys.prefix for libmkl_rt when it cannot find it by name (a
+    second, in a run's first step); solver.linsolve points it at the mkl package's file
+    (here with glob.glob disabled in a fresh process), unless the user set the path."""
+    env = {k: v for k, v in os.environ.items() if k != "PYPARDISO_MKL_RT"}
+    code = ("import glob, os\n"
+            "def boom(*a, **k): raise AssertionError('glob')\n"
+            "glob.glob = boom\n"
+            "from solver.linsolve import make_solver\n"
+            "lin = make_solver('pardiso-single')\n"
+            "print(type(lin).__name__, os.path.isfile(os.environ['PYPARDISO_MKL_RT']))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["Pardiso", "True"]
+
+
+@pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
 def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
     from solver.linsolve import Pardiso
     lin = Pardiso()
