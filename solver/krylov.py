@@ -122,8 +122,10 @@ class KrylovDirection:
                 D = Dc + U @ sp.diags(d) @ U.T
                 c = b - U @ (d * p)
             if du is None:
-                du = np.asarray(lin.solve(c)).ravel()
-                self.solved += 1
+                du = _plain(lin, r)
+                if du is None:
+                    du = np.asarray(lin.solve(c)).ravel()
+                    self.solved += 1
                 Adu = c.copy()
             du, Adu, n, new = gmres(lin.solve, D, c, du, Adu, self.rtol,
                                     self.maxiter - (self.solved - start), self._recycled(kept))
@@ -162,6 +164,15 @@ class KrylovDirection:
                            np.concatenate([c[0] for c in cols]), ptr),
                           shape=(self.nf, len(cols)))
         return U, np.array(ds), np.array(ps)
+
+
+def _plain(lin, r):
+    """A^-1 (-r_f) where Newton solved it already on lin's current factorization (its
+    plain direction, solver.newton._direction, kept as lin.plain), else None."""
+    kept = getattr(lin, "plain", None)
+    if kept is None or kept[0] is not r or kept[1] != lin.factorizations:
+        return None
+    return np.asarray(kept[2]).ravel().copy()
 
 
 def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):

@@ -196,6 +196,8 @@ def _direction(system, r, data, dup, lin):
         full[prescribed] = dup
         rhs -= (system.pattern.matrix(data) @ full)[free]
     duf = lin.solve(rhs)
+    if not np.any(dup):         # K^-1 (-r_f), GMRES's start on this factorization (krylov)
+        lin.plain = (r, lin.factorizations, duf)
     du = np.zeros(system.ndof)
     du[free] = duf
     du[prescribed] = dup
