@@ -117,3 +117,53 @@ def test_secant_search_saves_residuals_and_reaches_the_same_state():
     for a, b in zip(rows0, rows1):
         assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < 1e-4
         assert abs(a["lip_aperture"] - b["lip_aperture"]) < 1e-4
+
+
+class _Spring:
+    """One node on a unit spring to x = (1, 0, 0) (a load of 1 N)."""
+
+    name, nonsmooth = "spring", False
+
+    def blocks(self):
+        return [np.array([[0]])]
+
+    def load_scale(self, lam):
+        return 1.0
+
+    def assemble(self, state, asm, ids):
+        x = state.u[0]
+        asm.add_block(ids[0], (x - [1.0, 0.0, 0.0])[None, :], np.eye(3)[None])
+
+
+class _Jump:
+    """A force of 0.5 N against x that switches on at x_0 > 0.99 (no equilibrium: the
+    residual jumps from -0.01 to +0.49 N there)."""
+
+    name, nonsmooth = "jump", True
+
+    def blocks(self):
+        return [np.array([[0]])]
+
+    def assemble(self, state, asm, ids):
+        f = np.zeros((1, 3))
+        f[0, 0] = 0.5 * (state.u[0, 0] > 0.99)
+        asm.add_block(ids[0], f, np.zeros((1, 3, 3)))
+
+
+def test_newton_stuck_at_a_jump_fails_at_once_not_after_the_stall_window():
+    """From near the jump Newton's first search carries the node to it, where every
+    direction's search ends at s ~ 0; two such searches in a row fail the call (the
+    caller cuts back) instead of the stall test's eight iterations."""
+    from solver.linsolve import SuperLU
+    from solver.newton import newton
+    from solver.system import System
+    reports = {}
+    for after in (2, 100):
+        system = System([_Spring(), _Jump()], 1, [])
+        u, _, rep = newton(system, np.array([0.98, 0.0, 0.0]), np.zeros(0), SuperLU(),
+                           NewtonOptions(stuck_after=after))
+        assert u is None
+        reports[after] = rep
+    assert reports[2].reason.startswith("stuck")
+    assert reports[100].reason.startswith("stalled")
+    assert reports[2].iterations <= 4 < 8 <= reports[100].iterations
