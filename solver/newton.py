@@ -49,10 +49,10 @@ iterations, checked from iteration stall_window + 4 on) fails the step, and the 
 cuts back. So do ``stuck_after`` line searches in a row that cut the step to s <=
 ``stuck_fraction``: the iterate sits at a jump of the residual, where g changes sign with
 no root and the search ends at the jump. On the reference face's gesture of
-benchmarks/fast_path.py a lip slave whose nearest triangle switched between two faded
-(free) regions at a vertex both share (equidistant, with different face normals: a jump
-of 0.004 N at a rounding-level move) held ten substeps at t = 0.18 s for four to five
-such iterations each before the stall test failed them.
+benchmarks/fast_path.py a lip slave whose nearest triangle switched between two
+equidistant faded (free) regions, each with its own face normal (a jump of 0.004 N at a
+rounding-level move), held ten substeps at t = 0.18 s for four to five such iterations
+each before the stall test failed them.
 
 Factorization reuse (``reuse``; the default None: in calls with a key, i.e. the substeps
 of solver.transient, not in static solves, which keep full Newton): modified Newton.
