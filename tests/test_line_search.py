@@ -72,15 +72,20 @@ def test_a_kinked_line_is_searched_on_the_model_with_two_residuals():
 
 def test_a_jump_ends_the_search_at_the_best_step_without_more_residuals():
     """A force that jumps on (g changes sign with no root) exhausts the search's budget;
-    on the model that costs no whole residual, and the step taken is the best one tried,
-    just below the jump."""
-    system = _Lined("jump", at=0.7)
-    line = _line(system)
-    r0 = line(0.0)
-    system.residuals = 0
-    s = _line_search(line, r0, NewtonOptions())
-    assert system.residuals == 1                  # the full step only
-    assert 0.6 < s < 0.7
+    on the model that costs no whole residual but the full step's and the step taken's
+    (the next iterate's), and the step taken is the best one tried, just below the jump.
+    The exact search evaluates the residual at each of its trial steps."""
+    found = {}
+    for on in (True, False):
+        system = _Lined("jump", at=0.7)
+        line = _line(system)
+        r0 = line(0.0)
+        system.residuals = 0
+        s = _line_search(line, r0, NewtonOptions(secant_search=on))
+        assert 0.6 < s < 0.7
+        found[on] = system.residuals
+    assert found[True] == 2
+    assert found[False] > 2
 
 
 def test_the_norm_tests_see_the_free_dofs_not_the_reactions():
