@@ -37,9 +37,9 @@ class Pattern:
         self.dofs = [block_dofs(b) for b in conns]
         # the node pairs first (a ninth of the DOF pairs), then each as its 3 x 3 block
         diag = np.arange(n, dtype=np.int64)         # every node's block: the DOF diagonal
-        a = np.concatenate([np.repeat(b, b.shape[1], axis=1).ravel() for b in conns] + [diag])
-        b = np.concatenate([np.tile(b, (1, b.shape[1])).ravel() for b in conns] + [diag])
-        pairs, inv = np.unique(a * n + b, return_inverse=True)
+        rows = np.concatenate([np.repeat(c, c.shape[1], axis=1).ravel() for c in conns] + [diag])
+        cols = np.concatenate([np.tile(c, (1, c.shape[1])).ravel() for c in conns] + [diag])
+        pairs, inv = np.unique(rows * n + cols, return_inverse=True)
         first, second = pairs // n, pairs % n
         deg = np.bincount(first, minlength=n)
         start = np.zeros(n + 1, dtype=np.int64)
