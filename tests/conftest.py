@@ -67,3 +67,29 @@ def trained(tmp_path_factory):
     results = collect(full.scene, tasks, sim=full, progress=False)
     return {"scene": full.scene, "full": full, "path": path, "arrays": arrays, "meta": meta,
             "tasks": tasks, "results": results, "folder": folder}
+
+
+def gesture_both_ways(option, duration, count):
+    """benchmarks/fast_path.py's lip gesture on the coarse half face (lip and teeth
+    contact) for duration s, with NewtonOptions.option off and on: {on: (count(sim) after
+    the run, the recorded rows)}."""
+    from benchmarks.fast_path import gesture
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    runs = {}
+    for on in (False, True):
+        sim = Simulation(parse_scene(gesture(duration)), level="coarse", half=True)
+        setattr(sim.face.model.newton_options, option, on)
+        rows = []
+        sim.run(on_record=lambda s, row: rows.append(row))
+        runs[on] = (count(sim), rows)
+        sim.release()
+    return runs
+
+
+def assert_same_lips(rows0, rows1, tol=1e-4):
+    """Two runs' recorded lip protrusion and aperture agree to tol (mm) at every record."""
+    assert len(rows0) == len(rows1)
+    for a, b in zip(rows0, rows1):
+        assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < tol
+        assert abs(a["lip_aperture"] - b["lip_aperture"]) < tol

@@ -2,6 +2,7 @@
 
 import numpy as np
 import scipy.sparse as sp
+from conftest import assert_same_lips, gesture_both_ways
 
 from solver.krylov import gmres
 from solver.linsolve import SuperLU
@@ -78,20 +79,8 @@ def test_krylov_directions_save_factorizations_and_reach_the_same_state():
     directions with the contact's current tangent replace some refactorizations of the
     modified Newton (at the price of solves, and of line searches along them); the lip
     outputs are those of the plain reuse to the Newton tolerance."""
-    from benchmarks.fast_path import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
-    runs = {}
-    for on in (False, True):
-        sim = Simulation(parse_scene(gesture(0.05)), level="coarse", half=True)
-        sim.face.model.newton_options.krylov = on
-        rows = []
-        sim.run(on_record=lambda s, row: rows.append(row))
-        runs[on] = (sim.face.model.linear_solver.factorizations, rows)
-        sim.release()
+    runs = gesture_both_ways("krylov", 0.05,
+                             lambda sim: sim.face.model.linear_solver.factorizations)
     (f0, rows0), (f1, rows1) = runs[False], runs[True]
     assert f1 < 0.9 * f0
-    assert len(rows0) == len(rows1)
-    for a, b in zip(rows0, rows1):
-        assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < 1e-4
-        assert abs(a["lip_aperture"] - b["lip_aperture"]) < 1e-4
+    assert_same_lips(rows0, rows1)

@@ -3,6 +3,7 @@
 from types import SimpleNamespace
 
 import numpy as np
+from conftest import assert_same_lips, gesture_both_ways
 
 from solver.newton import NewtonOptions, _Line, _line_search, _Secant
 
@@ -105,23 +106,11 @@ def test_secant_search_saves_residuals_and_reaches_the_same_state():
     """On the lip gesture's first 0.11 s (coarse half face, lip and teeth contact, where
     the lips close) the search on the secant model takes fewer whole residuals for the
     same lip outputs (to the Newton tolerance)."""
-    from benchmarks.fast_path import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
-    runs = {}
-    for on in (False, True):
-        sim = Simulation(parse_scene(gesture(0.11)), level="coarse", half=True)
-        sim.face.model.newton_options.secant_search = on
-        rows = []
-        sim.run(on_record=lambda s, row: rows.append(row))
-        runs[on] = (sim.face.model.system().counters["residuals"], rows)
-        sim.release()
+    runs = gesture_both_ways("secant_search", 0.11,
+                             lambda sim: sim.face.model.system().counters["residuals"])
     (n0, rows0), (n1, rows1) = runs[False], runs[True]
     assert n1 < 0.95 * n0
-    assert len(rows0) == len(rows1)
-    for a, b in zip(rows0, rows1):
-        assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < 1e-4
-        assert abs(a["lip_aperture"] - b["lip_aperture"]) < 1e-4
+    assert_same_lips(rows0, rows1)
 
 
 class _Spring:
