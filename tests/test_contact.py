@@ -14,8 +14,8 @@ from solver.assembly import Assembly, Pattern
 from solver.kernels.contact import FACE, VERTEX, boundary_penalty, nearest, penalty_law
 from solver.meshgen import box
 from solver.terms.base import State
-from solver.terms.contact import (PENALTY, LipContact, RigidContact, nodes_near,
-                                  tributary_areas)
+from solver.terms.contact import (PENALTY, LipContact, RigidContact, build_contact_terms,
+                                  nodes_near, tributary_areas)
 
 STIFF = solver.MooneyRivlin(c10=0.05, c20=0.0, d=0.04)      # 20 x the face's tissue, MPa
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -159,7 +159,8 @@ def test_smoothed_law_is_consistent_on_both_sides_of_the_surface(rng, lift):
     mesh = box(2, 2, 1, (4.0, 4.0, 2.0), origin=(-2.0, -2.0, 0.0))
     u = rng.normal(0.0, 0.005, (mesh.n_nodes, 3))
     u[:, 2] += lift
-    term = RigidContact(mesh, mesh.node_sets["zmin"], plane, smoothing=s)
+    # the nodes rest on the plane, where the smoothed law pushes: no rest offset here
+    term = RigidContact(mesh, mesh.node_sets["zmin"], plane, smoothing=s, rest_offset=False)
     err_k, err_r = fd_errors(term, u)
     assert (np.abs(term.gap) < s).all() and (term.force > 0).all()
     assert err_k < 1e-5 and err_r < 1e-5
@@ -283,6 +284,58 @@ def test_no_contact_beyond_the_free_edge_of_a_sheet_without_fade():
     u[:, 0] = 2.0                                             # half the nodes off the edge
     run(u)
     assert term.n_active == 2 and np.isinf(term.gap).sum() == 2
+
+
+def _rest_and_pushed(term, mesh, push):
+    """The force on each slave (s, 3) at rest and with every node moved by push (3,)."""
+    run = Runner(term, mesh.n_nodes)
+    out = []
+    for u in (np.zeros((mesh.n_nodes, 3)), np.tile(push, (mesh.n_nodes, 1))):
+        out.append(-run(u, need_k=False).residual.reshape(-1, 3)[term.slaves])
+    return out
+
+
+@pytest.mark.parametrize("smoothing", [0.0, 0.02])
+def test_slaves_pushed_on_at_rest_are_offset_onto_the_surface(smoothing):
+    """Bottom nodes 0.05 mm behind a plane at rest (within rest_tolerance): with the rest
+    offset the rest state carries no force (a smoothed law's slaves rest at the gap s where
+    it begins) and a further push of 0.02 mm meets the law 0.02 mm on; without it the rest state is pushed on by the 0.05 mm penetration."""
+    mesh = box(2, 2, 1, (2.0, 2.0, 1.0), origin=(-1.0, -1.0, -0.05))
+    plane = grid_surface(4, 12.0)
+    bottom = mesh.node_sets["zmin"]
+    push = np.array([0.0, 0.0, -0.02])
+    term = RigidContact(mesh, bottom, plane, area=1.0, smoothing=smoothing)
+    np.testing.assert_allclose(term.offset, np.tile([0.0, 0.0, 0.05 + smoothing],
+                                                    (len(bottom), 1)), atol=1e-12)
+    rest, pushed = _rest_and_pushed(term, mesh, push)
+    assert np.abs(rest).max() < 1e-12
+    law = penalty_law(0.02 - smoothing, PENALTY, smoothing)[1]    # the rest is at p = -s
+    np.testing.assert_allclose(pushed, np.tile([0.0, 0.0, law], (len(bottom), 1)), rtol=1e-9,
+                               atol=1e-12)
+    old = RigidContact(mesh, bottom, plane, area=1.0, smoothing=smoothing, rest_offset=False)
+    assert not old.offset.any()
+    rest, pushed = _rest_and_pushed(old, mesh, push)
+    np.testing.assert_allclose(rest[:, 2], penalty_law(0.05, PENALTY, smoothing)[1])
+    np.testing.assert_allclose(pushed[:, 2], penalty_law(0.07, PENALTY, smoothing)[1])
+
+
+def test_slave_behind_a_rim_at_rest_is_offset_onto_the_rims_plane():
+    """A node beyond the free edge x = 2 of a sheet (fade 1 mm) and 0.2 mm behind its plane
+    at rest (no side there, so rest_tolerance does not drop it; the faded penalty pushed on
+    such nodes of the reference face's upper teeth with 6 N each): its offset is along the
+    rim's normal onto the plane, and a further push meets the faded penalty again."""
+    sheet = grid_surface(2, 4.0)                               # [-2, 2]^2 at z = 0
+    mesh = box(1, 1, 1, (0.8, 0.2, 1.0), origin=(1.5, -0.1, -0.2))
+    term = RigidContact(mesh, mesh.node_sets["zmin"], sheet, area=1.0)
+    node = term.slaves                   # those at x = 2.3; those over the sheet are dropped
+    np.testing.assert_allclose(mesh.nodes[node, 0], 2.3)
+    np.testing.assert_allclose(term.offset, np.tile([0.0, 0.0, 0.2], (len(node), 1)),
+                               atol=1e-12)
+    rest, pushed = _rest_and_pushed(term, mesh, np.array([0.0, 0.0, -0.05]))
+    assert np.abs(rest).max() < 1e-12
+    assert (pushed[:, 2] > 0.0).all()
+    old = RigidContact(mesh, mesh.node_sets["zmin"], sheet, area=1.0, rest_offset=False)
+    assert (_rest_and_pushed(old, mesh, np.zeros(3))[0][:, 2] > 0.0).all()
 
 
 def test_penalty_fades_continuously_around_the_rim_of_a_sheet():
@@ -437,6 +490,18 @@ def test_lip_contact_fades_beyond_the_edge_of_a_slaves_candidates():
     assert (forces[-1] == 0).any()                               # slid off: released
 
 
+@pytest.mark.parametrize("level", ["coarse", "paper"])
+def test_generic_face_rests_without_contact_force(level):
+    """The generated face's lips and cheeks clear the teeth and each other at rest: no
+    offsets, no contact force."""
+    from solver.anatomy.generic import generic_face
+    anatomy = generic_face(level=level, half=True)
+    n = anatomy.mesh.n_nodes
+    for term in build_contact_terms(anatomy):
+        assert np.abs(Runner(term, n)(np.zeros((n, 3)), need_k=False).residual).max() == 0.0
+        assert not getattr(term, "offset", np.zeros(1)).any()
+
+
 # -------------------------------------------------------------- reference face
 
 @pytest.fixture(scope="module")
@@ -505,3 +570,24 @@ def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
     assert max(t.max_penetration for t in sim.contact) < 0.1   # 0.065 mm, 4.7 N upper teeth
     print("\n" + "; ".join(f"{t.name}: {t.n_active} nodes, {t.total_force:.3f} N, "
                           f"{t.max_penetration:.4f} mm" for t in sim.contact))
+
+
+def test_reference_face_rests_without_contact_force(face_anatomy):
+    """The published mesh puts six cheek nodes behind the upper teeth (four by 0.03 and
+    0.10 mm; two beyond a rim, 0.42 mm behind its plane, 6.1 N each): offset onto them, the rest state carries no contact
+    force, so a run with every muscle at rest stays at rest (before, the face jolted: the
+    lips moved 0.013 / 0.016 mm in 0.1 s and the first 10 ms took 118 Newton iterations)."""
+    n = face_anatomy.mesh.n_nodes
+    for offset in (True, False):
+        terms = build_contact_terms(face_anatomy, rest_offset=offset)
+        force = [np.abs(Runner(t, n)(np.zeros((n, 3)), need_k=False).residual).max()
+                 for t in terms]
+        if offset:
+            assert max(force) < 1e-9
+            moved = np.concatenate([np.linalg.norm(t.offset, axis=1) for t in terms
+                                    if isinstance(t, RigidContact)])
+            # four within 0.1 mm (rest_tolerance), two beyond a rim 0.42 mm behind its plane
+            assert (moved > 0).sum() == 6 and (moved < 0.1).sum() == len(moved) - 2
+            assert moved.max() < 0.5
+        else:
+            assert max(force) > 1.0

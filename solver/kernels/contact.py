@@ -404,6 +404,37 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
 
 
 @njit(cache=True)
+def rest_offsets(xs, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, smooth,
+                 rim_other, rim_tri, active, out):
+    """out (s, 3): for the slaves flagged active (s,) the constant offset that puts xs (s, 3)
+    where the law of rigid_contact (same arguments) gives no force: beyond a free edge or
+    vertex onto the rim's plane, (a + smooth) m with the depth a behind it and the rim
+    normal m; else a gap of smooth along the outward direction n = +-d / |d| (the closest
+    point's pseudo-normal where d = 0), (smooth - g) n. Zero for the others."""
+    w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
+    d, m = np.empty(3), np.empty(3)
+    for i in range(xs.shape[0]):
+        out[i] = 0.0
+        if not active[i]:
+            continue
+        j, region, dist, sd, free, mp = locate(xs[i], xv, tris, cand[ptr[i]:ptr[i + 1]], fn,
+                                               en, vn, free_edge, free_vertex, w, wt, xm)
+        if j < 0:
+            continue
+        d[:] = xs[i] - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
+        if free:
+            rim_normal(d, region, cand[ptr[i] + j], tris, xv, fn, vn, rim_other, rim_tri, m)
+            out[i] = (smooth - (m @ d)) * m
+            continue
+        if dist > 0.0:
+            m[:] = d / dist if sd > 0.0 else -d / dist
+        else:
+            m[:] = mp / np.sqrt(mp @ mp)
+        g = dist if sd > 0.0 else -dist
+        out[i] = (smooth - g) * m
+
+
+@njit(cache=True)
 def _pair_free(pair_free, p, region):
     """Whether the feature region of pair p lies on its slave's candidate boundary:
     pair_free (p, 3) flags edge j of the pair's triangle; a vertex is free with either of

@@ -46,7 +46,7 @@ class _Rigid:
         self.term, self.delta = term, float(delta)
         self.slaves = np.asarray(term.slaves, dtype=np.int64)
         s = len(self.slaves)
-        self.X = np.ascontiguousarray(term.mesh.nodes[self.slaves])
+        self.X = np.ascontiguousarray(term.x0)              # rest positions, offsets in
         self.Vs = np.ascontiguousarray(Vn[self.slaves])                    # (s, 3, r)
         xv, tris = term.vertices, term.tris
         self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))

@@ -88,7 +88,18 @@ triangle centroids; each slave keeps the triangles whose centroid is within
 search_radius + (largest centroid-vertex distance) + margin of its position when the list
 was made, rebuilt once a slave has moved by more than margin. So every triangle within
 search_radius of a slave is a candidate; penetrations deeper than search_radius are not
-seen.
+seen. Rest offset (``rest_offset``, on by default): a slave that the law pushes on at rest
+(behind the sheet within rest_tolerance, or behind the plane of a rim where its penalty
+fades) takes a constant offset delta_i (.offset) that puts it where the law is force-free
+(onto the surface; beyond a rim onto the rim's plane; with smoothing s at the gap s), and
+the law sees x_i + delta_i: the anatomy as given is the rest state, with no contact force
+(ANSYS's contact option to exclude the initial penetration). As a constant, delta_i leaves
+the force and tangent formulas as they are. The reference face has six such cheek nodes
+on the upper teeth, two of them beyond a rim 0.42 mm behind its plane with 6.1 N each:
+without the offset a run with every muscle at rest moved the lips by 0.013 / 0.016 mm
+(aperture / protrusion) in 0.1 s, and the first 10 ms of benchmarks/fast_path.py's case a
+took 110 Newton iterations (13 with it; tests/test_contact.py). LipContact has no
+offset: neither anatomy's lips push on each other at rest (same test file).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
 and the reverse; quads split into two triangles). The sparsity pattern is built once, so
@@ -123,8 +134,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import ParameterError
-from ..kernels.contact import (nearest, pair_distances, rigid_contact, signed_gaps,
-                               surface_contact, surface_normals)
+from ..kernels.contact import (nearest, pair_distances, rest_offsets, rigid_contact,
+                               signed_gaps, surface_contact, surface_normals)
 from ..kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from .base import Term
 
@@ -366,11 +377,14 @@ class RigidContact(_Report, Term):
     smoothing       mm: the penalty law is smoothed over |g| < smoothing (0: pure penalty)
     fade            mm: beyond a free edge or vertex of the sheet the penalty fades over
                     this length (0: a node there is released)
+    rest_offset     move the slaves that the law pushes on at rest onto the surface by a
+                    constant offset each (.offset (s, 3)), so that the rest state carries
+                    no contact force (see the module docstring)
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
                  area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, smoothing=0.0,
-                 fade=EDGE_FADE):
+                 fade=EDGE_FADE, rest_offset=True):
         _check(penalty, smoothing)
         if not fade >= 0:
             raise ParameterError(f"{name}: fade = {fade!r} must be >= 0 (mm)")
@@ -405,10 +419,31 @@ class RigidContact(_Report, Term):
         s = len(self.slaves)
         self._fe, self._ke = np.zeros((s, 3)), np.zeros((s, 3, 3))
         self.tri = -np.ones(s, dtype=np.int64)
+        self.offset = np.zeros((s, 3))
+        self.x0 = mesh.nodes[self.slaves]
+        if rest_offset:
+            self.offset = self._rest_offsets()
+            self.x0 = self.x0 + self.offset
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((mesh.n_nodes, 3)))
 
     def _stiffnesses(self):
         return [self.k]
+
+    def _rest_offsets(self):
+        """(s, 3) the offsets that put the slaves pushed on at rest where the law is
+        force-free (solver.kernels.contact.rest_offsets); zero for the others."""
+        x = self.mesh.nodes[self.slaves]
+        ptr, cand = self._candidates(x)
+        s = len(x)
+        gap, force = np.empty(s), np.empty(s)
+        rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand, *self.normals.args(),
+                      self.search_radius, self.smoothing, False, self._fe, self._ke, gap, force,
+                      self.tri, *self.rim_args())
+        out = np.zeros((s, 3))
+        rest_offsets(x, self.vertices, self.tris, ptr, cand, *self.normals.args(),
+                     self.smoothing, *self.rim_args()[1:], force > 0.0, out)
+        self._cached = None
+        return out
 
     def rim_args(self):
         """The kernel's (fade, rim_other, rim_tri) (solver.kernels.contact.rigid_contact)."""
@@ -437,7 +472,7 @@ class RigidContact(_Report, Term):
         return self._cached[1], self._cached[2]
 
     def assemble(self, state, asm, block_ids):
-        x = self.mesh.nodes[self.slaves] + state.u[self.slaves]
+        x = self.x0 + state.u[self.slaves]
         ptr, cand = self._candidates(x)
         gap, force = np.empty(len(x)), np.empty(len(x))
         asm.energy += rigid_contact(x, self.k, self.vertices, self.tris, ptr, cand,
@@ -455,7 +490,7 @@ class RigidContact(_Report, Term):
         applies; None with a smoothed law."""
         if self.smoothing > 0:
             return None
-        x = self.mesh.nodes[self.slaves] + u[self.slaves]
+        x = self.x0 + u[self.slaves]
         ptr, cand = self._candidates(x)
         p, v = np.empty(len(x)), np.empty((len(x), 3))
         rigid_linear_gaps(x, self.vertices, self.tris, ptr, cand, *self.normals.args(),
@@ -643,19 +678,22 @@ def joined_surfaces(surfaces, tol=1e-9):
     return {name: RigidSurface(v, t) for name, v, t in groups}
 
 
-def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, **options):
+def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest_offset=True,
+                        **options):
     """The contact terms of an Anatomy: a RigidContact per rigid surface (surfaces that
     share a seam joined: joined_surfaces; named '<surface>_contact'; slaves: the movable
     nodes of the mesh boundary within teeth_distance (mm) of it at rest: the inner lip and
-    cheek surfaces) when teeth, a LipContact when lips (mirrored on the 'midsagittal'
-    nodes of a half anatomy); options go to every term (penalty, smoothing)."""
+    cheek surfaces; rest_offset as RigidContact's) when teeth, a LipContact when lips
+    (mirrored on the 'midsagittal' nodes of a half anatomy); options go to every term
+    (penalty, smoothing)."""
     mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
     terms = []
     if teeth:
         nodes = np.setdiff1d(np.unique(mesh.boundary_faces()), mesh.node_sets.get("fixed", []))
         for name, surface in joined_surfaces(anatomy.rigid_surfaces).items():
             terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
-                                      surface, name=f"{name}_contact", **options))
+                                      surface, name=f"{name}_contact",
+                                      rest_offset=rest_offset, **options))
     if lips:
         mirror = mesh.node_sets["midsagittal"] if anatomy.half else None
         terms.append(LipContact(mesh, surfaces["upper_lip"], surfaces["lower_lip"],
