@@ -490,6 +490,33 @@ def test_lip_contact_fades_beyond_the_edge_of_a_slaves_candidates():
     assert (forces[-1] == 0).any()                               # slid off: released
 
 
+@pytest.mark.parametrize("smoothing", [0.0, 0.02])
+def test_faded_lip_penalty_has_exact_derivatives_over_the_masters(rng, smoothing):
+    """Slaves slid beyond the edges of their one candidate triangle each (warped masters),
+    in the fade: the residual is the energy's gradient over the slave and the master's
+    nodes, the master's rotation and the closest point's sliding included (before, the
+    master nodes took -w_a times the slave's force, which left a moment d x f unbalanced
+    and the tangent 10 % off on the reference face's lips, so that Newton converged
+    linearly there), and the tangent is the residual's derivative."""
+    mesh, ida, idb, fa, fb = two_blocks(rng=rng, jitter=0.15)
+    term = LipContact(mesh, fb, fa, max_pairs=1, fade=1.0, smoothing=smoothing)
+    u = rng.normal(0.0, 0.01, (mesh.n_nodes, 3))
+    u[idb] += [0.8, 0.5, -0.2]
+    err_k, err_r = fd_errors(term, u)
+    q = term.passes[0]
+    x = mesh.nodes + u
+    act = q["active"][q["active"] >= 0]
+    w = np.empty(3)
+    regions = [nearest(x[q["nodes"][p, 0]], x, term.normals[1].tris, q["pair_tri"][p:p + 1],
+                       w, np.empty(3))[1] for p in act]
+    assert sum(r != FACE for r in regions) >= 3 and FACE in regions
+    assert err_k < 1e-5 and err_r < 1e-5
+    f = term.nodal_force
+    np.testing.assert_allclose(f.sum(axis=0), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.cross(x, f).sum(axis=0), 0.0,
+                               atol=1e-9 * np.abs(f).sum())
+
+
 @pytest.mark.parametrize("level", ["coarse", "paper"])
 def test_generic_face_rests_without_contact_force(level):
     """The generated face's lips and cheeks clear the teeth and each other at rest: no

@@ -24,7 +24,9 @@ normal of a vertex), +|d| otherwise; g <= 0 is active. A closest point on a free
 edge or vertex of an open surface has no side: such a node is out of contact on a rigid
 master; on a deformable one (and beyond an edge of a slave's candidate set) its penalty
 fades out beyond the edge (boundary_penalty: psi(a) phi(l / L) with the depth a behind
-the nearest triangle's plane and the distance l beyond it, C1 where it meets the face).
+the nearest triangle's plane and the distance l beyond it, C1 where it meets the face;
+on a deformable master its gradient over all four nodes by complex steps and its Hessian
+by central differences of that gradient: faded_pair).
 
 Penalty. With the penetration p = -g (signed: negative outside), psi(p) is k p^2 / 2 =
 k F for p >= 0 (pure penalty; a touching node, p = 0, carries the stiffness k hess F but no
@@ -329,6 +331,95 @@ def boundary_penalty(d, m, k, smooth, fade, need_k, g, H):
 
 
 @njit(cache=True)
+def _law_c(p, k, smooth):
+    """penalty_law's energy for a complex p (complex-step derivatives; branches on p.real)."""
+    if p.real >= smooth:
+        return k * (0.5 * p * p + smooth * smooth / 6.0)
+    q = p + smooth
+    if q.real <= 0.0:
+        return 0.0 * p
+    return k * q ** 3 / (12.0 * smooth)
+
+
+@njit(cache=True)
+def _faded_energy(X, region, k, smooth, fade):
+    """boundary_penalty's E = psi(a) phi(l / fade) of the slave X[0] beyond the edge or
+    vertex region of the triangle X[1:4] (complex (4, 3)), with m the triangle's face
+    normal and d = X[0] - c, c the closest point of the region's feature (its formula held
+    fixed: the derivatives within the region)."""
+    e1, e2 = X[2] - X[1], X[3] - X[1]
+    n = np.empty(3, dtype=np.complex128)
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1]
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2]
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0]
+    m = n / np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    if region < VERTEX:
+        xi, xj = X[1 + region - EDGE], X[1 + (region - EDGE + 1) % 3]
+        e = xj - xi
+        r = X[0] - xi
+        c = xi + ((r[0] * e[0] + r[1] * e[1] + r[2] * e[2])
+                  / (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])) * e
+    else:
+        c = X[1 + region - VERTEX]
+    d = X[0] - c
+    a = -(m[0] * d[0] + m[1] * d[1] + m[2] * d[2])
+    dp = d + a * m
+    s = np.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2]) / fade
+    if s.real >= 1.0:
+        return 0.0 * a
+    return _law_c(a, k, smooth) * (1.0 - s * s * (3.0 - 2.0 * s))
+
+
+@njit(cache=True)
+def _faded_gradient(X, region, k, smooth, fade, Xc, g):
+    """g (12,) = dE/dX of _faded_energy at the real X (4, 3) by complex steps (exact to
+    rounding); Xc (4, 3) complex work space."""
+    h = 1e-30
+    for a in range(4):
+        for i in range(3):
+            Xc[a, i] = X[a, i]
+    for r in range(12):
+        a, i = r // 3, r % 3
+        Xc[a, i] = X[a, i] + 1j * h
+        g[r] = _faded_energy(Xc, region, k, smooth, fade).imag / h
+        Xc[a, i] = X[a, i]
+
+
+FADED_STEP = 1e-6       # mm: central differences of the exact gradient for the Hessian
+
+
+@njit(cache=True)
+def faded_pair(xs, xm, region, k, smooth, fade, need_k, fe, ke):
+    """The faded penalty of a slave xs (3,) beyond a free edge or vertex (region) of the
+    deformable triangle xm (3, 3) with its face normal: fe (12,) its exact gradient over
+    (slave, x_1, x_2, x_3), the master's rotation (m turning) and the closest point's
+    sliding included (complex steps), and when need_k ke (12, 12) its Hessian (central
+    differences of that gradient over FADED_STEP, symmetrized). The energy is invariant
+    under rigid motions, so the forces balance in force and moment."""
+    X = np.empty((4, 3))
+    X[0] = xs
+    X[1:] = xm
+    Xc = np.empty((4, 3), dtype=np.complex128)
+    _faded_gradient(X, region, k, smooth, fade, Xc, fe)
+    if not need_k:
+        return
+    gp, gm = np.empty(12), np.empty(12)
+    for c in range(12):
+        a, i = c // 3, c % 3
+        X[a, i] += FADED_STEP
+        _faded_gradient(X, region, k, smooth, fade, Xc, gp)
+        X[a, i] -= 2.0 * FADED_STEP
+        _faded_gradient(X, region, k, smooth, fade, Xc, gm)
+        X[a, i] += FADED_STEP
+        for r in range(12):
+            ke[r, c] = (gp[r] - gm[r]) / (2.0 * FADED_STEP)
+    for r in range(12):
+        for c in range(r + 1, 12):
+            v = 0.5 * (ke[r, c] + ke[c, r])
+            ke[r, c] = ke[c, r] = v
+
+
+@njit(cache=True)
 def rim_normal(d, region, t, tris, xv, fn, vn, rim_other, rim_tri, m):
     """The fade's normal m (3,) for a point at d (3,) from its closest point on a free
     edge (region 1 + j of triangle t: the face normal fn[t]) or free vertex v (region
@@ -459,12 +550,11 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
     force (s,). Active: g <= 0 and |g| <= depth. Beyond a free edge or vertex of the
     surface, or of the slave's candidates (pair_free (p, 3): edge j of the pair's triangle
     borders no other candidate of its slave), the penalty fades over fade (mm;
-    boundary_penalty with the triangle's face normal; its tangent there is the slave's
-    N N^T (x) P H P, the sliding and rotation of the master left out). Returns the
-    energy."""
+    boundary_penalty with the triangle's face normal, its exact gradient and Hessian over
+    the slave and the master: faded_pair). Returns the energy."""
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
-    proj, g, H, d = np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3)
+    g, H, d = np.empty(3), np.empty((3, 3)), np.empty(3)
     for i in range(slaves.shape[0]):
         if active[i] >= 0:
             fe[active[i]] = 0.0
@@ -483,22 +573,15 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             free = free or _pair_free(pair_free, p, region)
         if free:                       # the faded penalty on the triangle's plane
             d[:] = xs - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
-            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, need_k,
+            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, False,
                                             g, H)
             if psi <= 0.0:
                 gap[i] = dist
                 continue
-            distance_derivatives(xs, xm, region, w, 1, True, d, proj)
-            f = proj @ g
-            nw = np.array([1.0, -w[0], -w[1], -w[2]])
-            for a in range(4):
-                fe[p, 3 * a:3 * a + 3] = nw[a] * f
+            faded_pair(xs, xm, region, k[i], smooth, fade, need_k, fe[p], ke[p])
             if need_k:
-                kp = proj @ H @ proj
-                for a in range(4):
-                    for b in range(4):
-                        ke[p, 3 * a:3 * a + 3, 3 * b:3 * b + 3] = nw[a] * nw[b] * kp
                 kept[i] = p
+            f = fe[p, :3]
             gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
             energy += psi
             continue

@@ -20,8 +20,14 @@ l = |d + a N| beyond the edge,
 
 psi the penalty law below and L = fade (1 mm). On the lips N is the face normal of the
 nearest triangle. At l = 0 this is the face's energy (d is along N there) and
-phi'(0) = 0, so Psi is C1 across the edge; the reported gap is -a phi. The tangent there
-leaves out the master's rotation and sliding. On the rigid teeth (RigidContact, fade 0:
+phi'(0) = 0, so Psi is C1 across the edge; the reported gap is -a phi. On the lips Psi's
+gradient and Hessian are taken over the slave and the master's three nodes, the turning
+N and the closest point's sliding included (solver.kernels.contact.faded_pair): exact
+forces, which balance in moment, and an exact tangent. (Before, the master nodes took
+-w_a times the slave's force and the tangent left the master's motion out: on the
+reference face's gesture the lip contact's tangent was 10 % off its residual's
+derivative at t = 0.13 s and Newton converged linearly there, at 0.67 per iteration
+with a new tangent at every iterate.) On the rigid teeth (RigidContact, fade 0:
 released as before) N is the rim normal (solver.kernels.contact.rim_normal): the face
 normal beyond an edge, and beyond a free vertex a blend of the face normals of its two
 free edges' triangles by the point's place in the vertex's region, so that N is
@@ -109,7 +115,13 @@ node has n . the triangle's normal < 0, so that a node on an edge of its lip, e.
 the slit meets the inner face, also sees the other lip's inner face that it may wrap
 around; and the slave in front of the triangle's plane),
 which keeps the backs and the filled caps of closed lip surfaces out; at most max_pairs
-nearest per slave. Nodes on both surfaces (the joined mouth corners) are no slaves, and a
+(24) nearest per slave. A slave's candidates are a patch of the other lip whose edges it
+sees as free (below): with 12, a lip slave of the reference face's gesture slid to a
+vertex on its patch's edge at t = 0.18 s, where its nearest triangle switched between
+faded regions with their own normals, a jump in force with no equilibrium (four to ten
+cutbacks per run; with the exact faded derivatives the step at t = 0.184 s failed after
+every cutback), though the lip goes on beyond it; 24 keeps the slaves inside their
+patches (benchmarks/fast_path.py, docs/fast_path.md). Nodes on both surfaces (the joined mouth corners) are no slaves, and a
 slave inside the other lip at rest by more than rest_tolerance is dropped. Each slave
 takes its nearest candidate; penetrations deeper than depth (0.5 mm, ten times the
 0.05 mm tolerance) are ignored: a node that came in elsewhere than through its candidates.
@@ -506,7 +518,7 @@ class LipContact(_Report, Term):
                    oriented outwards (counter-clockwise seen from outside)
     penalty        N/mm^3; node stiffness k_i = penalty * area_i, area_i from its own surface
     radius         mm: candidate pairs are master triangles within radius at rest
-    max_pairs      the nearest candidate triangles kept per slave
+    max_pairs      the nearest candidate triangles kept per slave (see above)
     depth          mm: deeper penetrations are ignored
     rest_tolerance mm: slaves inside the other lip at rest by more are dropped
     smoothing      mm: the penalty law is smoothed over |g| < smoothing (0: pure penalty)
@@ -517,7 +529,7 @@ class LipContact(_Report, Term):
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
-                 radius=6.0, max_pairs=12, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
+                 radius=6.0, max_pairs=24, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
                  mirror_nodes=None, fade=EDGE_FADE):
         _check(penalty, smoothing)
         if not fade > 0:
