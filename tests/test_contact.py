@@ -299,7 +299,8 @@ def _rest_and_pushed(term, mesh, push):
 def test_slaves_pushed_on_at_rest_are_offset_onto_the_surface(smoothing):
     """Bottom nodes 0.05 mm behind a plane at rest (within rest_tolerance): with the rest
     offset the rest state carries no force (a smoothed law's slaves rest at the gap s where
-    it begins) and a further push of 0.02 mm meets the law 0.02 mm on; without it the rest state is pushed on by the 0.05 mm penetration."""
+    it begins) and a further push of 0.02 mm meets the law 0.02 mm on; without it the rest
+    state is pushed on by the 0.05 mm penetration."""
     mesh = box(2, 2, 1, (2.0, 2.0, 1.0), origin=(-1.0, -1.0, -0.05))
     plane = grid_surface(4, 12.0)
     bottom = mesh.node_sets["zmin"]
@@ -601,9 +602,10 @@ def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
 
 def test_reference_face_rests_without_contact_force(face_anatomy):
     """The published mesh puts six cheek nodes behind the upper teeth (four by 0.03 and
-    0.10 mm; two beyond a rim, 0.42 mm behind its plane, 6.1 N each): offset onto them, the rest state carries no contact
-    force, so a run with every muscle at rest stays at rest (before, the face jolted: the
-    lips moved 0.013 / 0.016 mm in 0.1 s and the first 10 ms took 118 Newton iterations)."""
+    0.10 mm; two beyond a rim, 0.42 mm behind its plane, 6.1 N each): offset onto them,
+    the rest state carries no contact force, so a run with every muscle at rest stays at
+    rest (before, the face jolted: the lips moved 0.013 / 0.016 mm in 0.1 s and the first
+    10 ms took 118 Newton iterations)."""
     n = face_anatomy.mesh.n_nodes
     for offset in (True, False):
         terms = build_contact_terms(face_anatomy, rest_offset=offset)

@@ -121,18 +121,19 @@ vertex on its patch's edge at t = 0.18 s, where its nearest triangle switched be
 faded regions with their own normals, a jump in force with no equilibrium (four to ten
 cutbacks per run; with the exact faded derivatives the step at t = 0.184 s failed after
 every cutback), though the lip goes on beyond it; 24 keeps the slaves inside their
-patches (benchmarks/fast_path.py, docs/fast_path.md). Nodes on both surfaces (the joined mouth corners) are no slaves, and a
-slave inside the other lip at rest by more than rest_tolerance is dropped. Each slave
-takes its nearest candidate; penetrations deeper than depth (0.5 mm, ten times the
-0.05 mm tolerance) are ignored: a node that came in elsewhere than through its candidates.
-An edge of a slave's candidate triangles whose other face is no candidate of that slave
-(the facing test drops the far side of the lip's rim) is free for that slave: beyond it
-the pseudo-normal's sign test is meaningless (the paper-level OOP + RIS gesture stalled
-at t = 0.151 s with a slave 0.009 mm from such an edge whose gap flipped between +0.009
-and -0.009 mm, d perpendicular to the edge's pseudo-normal), so the penalty fades there
-as beyond a free edge. Only the active pairs are scattered. On a half model
-the lip surfaces end on the symmetry plane: their edges there are mirror edges, whose
-pseudo-normals include the mirrored surface, not free edges.
+patches (benchmarks/fast_path.py, docs/fast_path.md). Nodes on both surfaces (the joined
+mouth corners) are no slaves, and a slave inside the other lip at rest by more than
+rest_tolerance is dropped. Each slave takes its nearest candidate; penetrations deeper
+than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a node that came in
+elsewhere than through its candidates. An edge of a slave's candidate triangles whose
+other face is no candidate of that slave (the facing test drops the far side of the
+lip's rim) is free for that slave: beyond it the pseudo-normal's sign test is
+meaningless (the paper-level OOP + RIS gesture stalled at t = 0.151 s with a slave 0.009
+mm from such an edge whose gap flipped between +0.009 and -0.009 mm, d perpendicular to
+the edge's pseudo-normal), so the penalty fades there as beyond a free edge. Only the
+active pairs are scattered. On a half model the lip surfaces end on the symmetry plane:
+their edges there are mirror edges, whose pseudo-normals include the mirrored surface,
+not free edges.
 
 After each assembly both terms hold: gap (s,) signed gaps of their slaves (inf: no
 candidate or a free boundary), force (s,) the slaves' normal contact forces (N), n_active,
