@@ -19,16 +19,16 @@ l = |d + a N| beyond the edge,
     Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
 
 psi the penalty law below and L = fade (1 mm). On the lips N is the face normal of the
-nearest triangle. At l = 0 this is the face's energy (d is along N there) and
-phi'(0) = 0, so Psi is C1 across the edge; the reported gap is -a phi. On the lips Psi's
-gradient and Hessian are taken over the slave and the master's three nodes, the turning
-N and the closest point's sliding included (solver.kernels.contact.faded_pair): exact
-forces, which balance in moment, and an exact tangent. (Before, the master nodes took
--w_a times the slave's force and the tangent left the master's motion out: on the
-reference face's gesture the lip contact's tangent was 10 % off its residual's
-derivative at t = 0.13 s and Newton converged linearly there, at 0.67 per iteration
-with a new tangent at every iterate.) On the rigid teeth (RigidContact, fade 0:
-released as before) N is the rim normal (solver.kernels.contact.rim_normal): the face
+nearest triangle. At l = 0 this is the face's energy (d is along N there) and phi'(0) =
+0, so Psi is C1 across the edge; the reported gap is -a phi. On the lips Psi's gradient
+and Hessian are taken over the slave and the master's three nodes, the turning N and the
+closest point's sliding included (solver.kernels.contact.faded_pair): exact forces,
+which balance in moment, and an exact tangent. (Before, the master nodes took -w_a times
+the slave's force and the tangent left the master's motion out: on the reference face's
+gesture the lip contact's tangent was 8-12 % off its residual's derivative at t = 0.13 s
+(benchmarks/tangent_check.py), and Newton converged linearly there, at 0.67 per
+iteration with a new tangent at every iterate.) On the rigid teeth (RigidContact, fade
+0: released as before) N is the rim normal (solver.kernels.contact.rim_normal): the face
 normal beyond an edge, and beyond a free vertex a blend of the face normals of its two
 free edges' triangles by the point's place in the vertex's region, so that N is
 continuous all around the rim (its turn with the point is left out of the force, which
@@ -104,8 +104,8 @@ the force and tangent formulas as they are. The reference face has six such chee
 on the upper teeth, two of them beyond a rim 0.42 mm behind its plane with 6.1 N each:
 without the offset a run with every muscle at rest moved the lips by 0.013 / 0.016 mm
 (aperture / protrusion) in 0.1 s, and the first 10 ms of benchmarks/fast_path.py's case a
-took 110 Newton iterations (13 with it; tests/test_contact.py). LipContact has no
-offset: neither anatomy's lips push on each other at rest (same test file).
+took 110 Newton iterations (13 with it; docs/fast_path.md, session 15). LipContact has
+no offset: neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
 and the reverse; quads split into two triangles). The sparsity pattern is built once, so
