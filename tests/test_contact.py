@@ -620,3 +620,21 @@ def test_reference_face_rests_without_contact_force(face_anatomy):
             assert moved.max() < 0.5
         else:
             assert max(force) > 1.0
+
+
+@pytest.mark.slow                   # about 40 s: 0.2 s of the reference face's gesture
+def test_reference_face_gesture_passes_where_a_lip_slave_met_its_patchs_edge(face_anatomy):
+    """benchmarks/fast_path.py's case a (OOP + RIS with lip and teeth contact, full face)
+    to t = 0.2 s. With 12 candidate triangles per lip slave, slave 6302 reached a vertex on
+    the edge of its patch at t = 0.18 s, where three triangles gave three laws: 4 to 10
+    cutbacks per run, and with the exact faded derivatives every cutback failed at
+    t = 0.184 s. With 24 the run passes with at most one cutback (one, at t = 0.15 s,
+    where a slave's nearest triangle turns across a concave edge)."""
+    from benchmarks.fast_path import gesture
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    sim = Simulation(parse_scene(gesture(0.2)), anatomy=str(DATA), half=False)
+    cutbacks = []
+    sim.run(on_record=lambda s, row: cutbacks.append(s.last.cutbacks if s.t > 0 else 0))
+    assert sim.t == pytest.approx(0.2)
+    assert sum(cutbacks) <= 1
