@@ -4,6 +4,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..kernels.brick import FORMULATIONS, brick_forces
+from ..kernels.brick_residual import brick_residual
 from .base import InvertedElement, Term
 
 
@@ -57,8 +58,13 @@ class Elasticity(Term):
         return [self.bricks]
 
     def assemble(self, state, asm, block_ids):
-        brick_forces(state.u, self.bricks, self._dndX, self._w, self._params(state.lam),
-                     self.form, asm.need_k, self._fe, self._ke, self._energy, self._jmin)
+        params = self._params(state.lam)
+        if asm.need_k:
+            brick_forces(state.u, self.bricks, self._dndX, self._w, params, self.form, True,
+                         self._fe, self._ke, self._energy, self._jmin)
+        else:
+            brick_residual(state.u, self.bricks, self._dndX, self._w, params, self.form,
+                           self._fe, self._energy, self._jmin)
         e = int(np.argmin(self._jmin))
         self.min_det_f = float(self._jmin[e])
         if not self.min_det_f > 0.0:
