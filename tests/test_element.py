@@ -108,13 +108,16 @@ def test_small_strain_stiffness_is_the_tangent_at_zero_strain(form, shape, rng):
 @pytest.mark.parametrize("form", ["mean_dilatation", "full"])
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("case", FS)
-def test_residual_kernel_matches_the_tangent_kernel(form, shape, case, rng):
-    """The residual's own pass (P written in F, solver.kernels.brick_residual) against the
-    tangent kernel's force and energy, with all five Mooney-Rivlin terms switched on (c01,
-    c11, c02 are zero in the face's law, so their branch is checked here only), over a
-    block of bricks as the parallel driver runs them, and an inverted brick flagged."""
+def test_residual_and_tangent_kernels_match_the_reference_kernel(form, shape, case, rng):
+    """The residual's pass (P written in F, solver.kernels.brick_residual) and the
+    assembly's (node-pair contractions, solver.kernels.brick_tangent) against
+    solver.kernels.brick (whose tangent the finite-difference tests above check), with
+    all five Mooney-Rivlin terms switched on (c01, c11, c02 are zero in the face's law, so
+    their branches are checked here only), over a block of bricks as the parallel drivers
+    run them, and an inverted brick flagged."""
     from solver.kernels.brick import FORMULATIONS, brick_forces
     from solver.kernels.brick_residual import brick_residual
+    from solver.kernels.brick_tangent import brick_tangent
     p = P.copy()
     p[1], p[3], p[4] = 0.4 * p[0], 0.3 * p[2], 0.2 * p[2]
     X, dn, w = _element(shape, rng)
@@ -126,11 +129,12 @@ def test_residual_kernel_matches_the_tangent_kernel(form, shape, case, rng):
     dndX, wgp = np.repeat(dn[None], m, 0), np.repeat(w[None], m, 0)
     params = np.repeat(p[None], m, 0)
     form = FORMULATIONS[form]
-    out = [(np.empty((m, 24)), np.empty(m), np.empty(m)) for _ in range(2)]
-    brick_forces(u, bricks, dndX, wgp, params, form, False, out[0][0], np.empty((m, 24, 24)),
-                 out[0][1], out[0][2])
-    brick_residual(u, bricks, dndX, wgp, params, form, *out[1])
-    (f0, e0, j0), (f1, e1, j1) = out
-    assert np.abs(f1[:4] - f0[:4]).max() <= 1e-12 * np.abs(f0[:4]).max()
-    assert np.abs(e1[:4] - e0[:4]).max() <= 1e-12 * np.abs(e0[:4]).max()
-    assert np.array_equal(j1, j0) and j1[4] < 0 and not np.isfinite(e1[4])
+    ref, res, tan = [(np.empty((m, 24)), np.empty((m, 24, 24)), np.empty(m), np.empty(m))
+                     for _ in range(3)]
+    brick_forces(u, bricks, dndX, wgp, params, form, True, *ref)
+    brick_residual(u, bricks, dndX, wgp, params, form, res[0], res[2], res[3])
+    brick_tangent(u, bricks, dndX, wgp, params, form, *tan)
+    for out, parts in ((res, (0, 2)), (tan, (0, 1, 2))):
+        for k in parts:
+            assert np.abs(out[k][:4] - ref[k][:4]).max() <= 1e-12 * np.abs(ref[k][:4]).max()
+        assert np.array_equal(out[3], ref[3]) and out[3][4] < 0 and not np.isfinite(out[2][4])

@@ -21,6 +21,11 @@ Two formulations share one kernel:
 * ``full``: U(J) at every Gauss point (plain fully integrated trilinear brick), which
   locks for nearly incompressible materials; kept as a reference and a fidelity knob.
 
+The full-order solver runs two faster kernels of the same element, tested against this
+one to rounding: solver.kernels.brick_residual (forces only) and solver.kernels.
+brick_tangent (the tangent by node-pair contractions); this one is the reference, and the
+reduced-order model's (solver.rom.kernels).
+
 Shapes: u_e (8, 3), dN/dX (8 gp, 8, 3), w = det J0 * weight (8 gp,), params (6,);
 f_e (24,), K_e (24, 24) with DOF order (node a, component i) -> 3 a + i.
 """

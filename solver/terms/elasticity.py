@@ -1,10 +1,17 @@
-"""Hyperelastic soft tissue: the brick kernel over the mesh (or a subset of its bricks)."""
+"""Hyperelastic soft tissue: the brick kernels over the mesh (or a subset of its bricks).
+
+A residual runs solver.kernels.brick_residual (forces only), an assembly with the tangent
+solver.kernels.brick_tangent; both give solver.kernels.brick's forces, energy and tangent
+to rounding (tests/test_element.py), which stays the reference implementation (and the
+reduced-order model's kernel, solver.rom.kernels).
+"""
 
 import numpy as np
 
 from ..errors import ParameterError
-from ..kernels.brick import FORMULATIONS, brick_forces
+from ..kernels.brick import FORMULATIONS
 from ..kernels.brick_residual import brick_residual
+from ..kernels.brick_tangent import brick_tangent
 from .base import InvertedElement, Term
 
 
@@ -60,8 +67,8 @@ class Elasticity(Term):
     def assemble(self, state, asm, block_ids):
         params = self._params(state.lam)
         if asm.need_k:
-            brick_forces(state.u, self.bricks, self._dndX, self._w, params, self.form, True,
-                         self._fe, self._ke, self._energy, self._jmin)
+            brick_tangent(state.u, self.bricks, self._dndX, self._w, params, self.form,
+                          self._fe, self._ke, self._energy, self._jmin)
         else:
             brick_residual(state.u, self.bricks, self._dndX, self._w, params, self.form,
                            self._fe, self._energy, self._jmin)
