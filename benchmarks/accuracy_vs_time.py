@@ -32,6 +32,9 @@ Runs (each an independent task of benchmarks.sweep; the default sweep):
   refused at t = 0.092 s.)
 * the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
+* the `balanced` preset at substep error tolerances 1e-2 (its own until session 16),
+  2e-2 and 3e-2 mm, and `fast` at 1e-2 mm, the rest of each preset as it is (labels
+  "balanced at substep_tol 0.01" and so on): what the presets' 5e-2 mm costs;
 * the reduced-order fidelity `realtime` (solver.rom: its full-order knobs, coarse half face,
   LOOSE) with the model trained on open_round (`python benchmarks/rom_train.py --scene
   open_round`; left out, with that command printed, where no model is trained);
@@ -157,6 +160,7 @@ def sweep_specs(quick=False, reference_face=None):
         runs.append(spec("medium formulation full", ref, level="medium", formulation="full"))
     runs += preset_specs(runs, ref)
     if not quick:
+        runs += tolerance_specs(ref)
         runs.append(realtime_spec(ref))
     if not quick and reference_face is not None and (reference_face / "newface.node").is_file():
         face, rref = str(reference_face.resolve()), "reference face tight"
@@ -202,6 +206,20 @@ def realtime_model_missing(specs, duration):
         print("realtime: no trained model of the gesture (train it with `python "
               "benchmarks/rom_train.py --scene open_round`); its run is left out")
         return [s for s in specs if s.get("fidelity") != "realtime"]
+
+
+def tolerance_specs(ref):
+    """The `balanced` and `fast` presets at tighter substep error tolerances than their own
+    (the rest of each preset as it is): what the preset's substep tolerance costs in error
+    and saves in time (solver/fidelity.py, docs/accuracy.md)."""
+    from solver.fidelity import PRESETS
+
+    out = []
+    for name, tols in (("balanced", (1e-2, 2e-2, 3e-2)), ("fast", (1e-2,))):
+        knobs = with_rows({**DEFAULT, **PRESETS[name]})
+        out += [spec(f"{name} at substep_tol {tol:g}", ref, **{**knobs, "substep_tol": tol})
+                for tol in tols if tol < knobs["substep_tol"]]
+    return out
 
 
 def preset_specs(runs, ref):

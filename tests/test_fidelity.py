@@ -65,7 +65,7 @@ def test_simulation_applies_the_preset_under_its_overrides():
         "substep_tol"]
     assert sim.scene.newton_rtol == 1e-7                          # the override wins
     assert sim.face.model.newton_options.rtol == 1e-7
-    assert sim.face.model.newton_options.utol == PRESETS["balanced"]["newton_utol"] == 1e-4
+    assert sim.face.model.newton_options.utol == PRESETS["balanced"]["newton_utol"] == 1e-3
     assert sim.scene.rows == 2 and sim.anatomy.half
     assert sim.anatomy.mesh.n_bricks == 2 * 1449                 # medium half face, 2 rows
 
@@ -289,3 +289,12 @@ def test_every_preset_is_a_run_of_the_default_sweep():
     table = [{k: s[k] for k in ("label", *avt.KNOBS)} for s in specs]
     avt.mark_presets(table)
     assert {r.get("preset") for r in table} >= set(FIDELITIES)
+
+
+def test_tolerance_runs_differ_from_their_preset_in_a_tighter_substep_tolerance_alone():
+    specs = avt.tolerance_specs("fine")
+    assert {s["label"].split()[0] for s in specs} == {"balanced", "fast"}
+    for s in specs:
+        knobs = avt.with_rows({**avt.DEFAULT, **PRESETS[s["label"].split()[0]]})
+        assert {k for k in avt.KNOBS if s[k] != knobs[k]} == {"substep_tol"}
+        assert s["substep_tol"] < knobs["substep_tol"] and s["ref"] == "fine"
