@@ -17,11 +17,15 @@ one that comes into contact and -k_i for one that leaves; repeated until the set
 settles). D is supported on the contact's DOFs and is assembled sparse (its entries that
 differ from zero); A is only solved with, never multiplied.
 
-Right-preconditioned GMRES: du = du_0 + Z y with du_0 = A^-1 c (the plain modified
-Newton step) and Z = A^-1 V, V the Arnoldi basis of the residual's Krylov space. Since
-A du_0 = c, the initial linear residual is c - (A + D) du_0 = -D du_0, and (A + D) z_j =
-v_j + D z_j: one solve and one product with D per iteration, and the direction from the
-kept Z without another solve. The iteration stops when ||c - (A + D) du|| <= rtol ||c||
+Right-preconditioned GMRES: du = a du_0 + Z y with du_0 = A^-1 c (the plain modified
+Newton step, or the last round's direction) and Z = A^-1 V, V the Arnoldi basis of the
+residual's Krylov space; (A + D) z_j = v_j + D z_j: one solve and one product with D per
+iteration, and the direction from the kept Z without another solve. du_0's coefficient
+a is free (du_0 joins the augmentation space below, with A du_0 known, and the iteration
+starts from zero): with a = 1 fixed the start's linear residual is -D du_0, which was 15
+to 30 times ||c|| where a step carries a slave into contact (a penalty's stiffness), and
+34 of 163 directions on benchmarks/fast_path.py's case a used up their budget of solves;
+with a free, 27 of 158, and 881 solves against 915 (session 16). The iteration stops when ||c - (A + D) du|| <= rtol ||c||
 (the product A Z taken as V: to the factorization's precision). Where it does not within
 maxiter, no direction is returned and Newton refactorizes.
 
@@ -196,6 +200,11 @@ def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):
     if float(np.linalg.norm(r0)) <= goal:
         return du0, Adu0, 0, none
     Zr, AZr = recycled if recycled is not None and len(recycled[0]) else none
+    # du0 joins the augmentation space with a free coefficient, and the iteration starts
+    # from zero (module docstring): no solve more, and ||c - (A + D) du|| <= ||c|| from
+    # the start where D du0 is large (a slave's contact switching)
+    Zr, AZr = np.vstack([Zr, du0[None]]), np.vstack([AZr, Adu0[None]])
+    r0 = c
     if len(Zr):                                  # (A + D) Z = AZ + D Z = Q R
         Q, R = np.linalg.qr((AZr + (D @ Zr.T).T).T)
         keep = np.abs(np.diag(R)) > 1e-12 * np.abs(np.diag(R)).max()
@@ -207,7 +216,7 @@ def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):
     beta = float(np.linalg.norm(r1))
     if beta <= goal:
         y = np.linalg.solve(R, qr0)
-        return du0 + y @ Zr, Adu0 + y @ AZr, 0, none
+        return y @ Zr, y @ AZr, 0, none
     if m <= 0:
         return None, None, 0, none
     V, Z = np.zeros((m + 1, n)), np.zeros((m, n))
@@ -229,8 +238,8 @@ def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):
         if res <= goal or H[j + 1, j] == 0.0:
             k = j + 1
             yr = np.linalg.solve(R, qr0 - B[:, :k] @ y) if len(Zr) else np.zeros(0)
-            du = du0 + y @ Z[:k] + yr @ Zr
-            Adu = Adu0 + y @ V[:k] + yr @ AZr
+            du = y @ Z[:k] + yr @ Zr
+            Adu = y @ V[:k] + yr @ AZr
             return du, Adu, k, (Z[:k], V[:k])
         V[j + 1] = w / H[j + 1, j]
     return None, None, m, (Z, V[:m])
