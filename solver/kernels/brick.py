@@ -33,7 +33,7 @@ f_e (24,), K_e (24, 24) with DOF order (node a, component i) -> 3 a + i.
 import numpy as np
 from numba import njit, prange
 
-from .invariants import inverse3
+from .invariants import deformation_gradient, inverse3
 from .material_point import point_response_ws
 from .material_point import workspace as material_workspace
 from .mooney_rivlin import vol_energy
@@ -74,12 +74,7 @@ def _element_ws(ue, dndX, wgp, p, form, need_k, fe, ke, mws):
     for g in range(8):
         w = wgp[g]
         G = dndX[g]
-        for i in range(3):
-            for J in range(3):
-                s = 1.0 if i == J else 0.0
-                for a in range(8):
-                    s += ue[a, i] * G[a, J]
-                F[i, J] = s
+        deformation_gradient(ue, G, F)
         det = inverse3(F, Fi)
         jmin = min(jmin, det)
         if det <= 0.0:

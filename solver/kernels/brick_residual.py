@@ -24,7 +24,7 @@ params (m, 6); fe (m, 24), energy (m,), jmin (m,).
 import numpy as np
 from numba import njit, prange
 
-from .invariants import inverse3
+from .invariants import deformation_gradient, inverse3
 from .mooney_rivlin import vol_energy
 
 
@@ -43,12 +43,7 @@ def _element_residual(ue, dndX, wgp, p, form, fe, Q):
     for g in range(8):
         w = wgp[g]
         G = dndX[g]
-        for i in range(3):
-            for K in range(3):
-                s = 1.0 if i == K else 0.0
-                for a in range(8):
-                    s += ue[a, i] * G[a, K]
-                F[i, K] = s
+        deformation_gradient(ue, G, F)
         J = inverse3(F, Fi)
         jmin = min(jmin, J)
         if J <= 0.0:

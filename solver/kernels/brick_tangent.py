@@ -30,7 +30,7 @@ fe (m, 24), ke (m, 24, 24), energy (m,), jmin (m,).
 import numpy as np
 from numba import njit, prange
 
-from .invariants import inverse3
+from .invariants import deformation_gradient, inverse3
 from .material_point import point_response_ws
 from .material_point import workspace as material_workspace
 from .mooney_rivlin import vol_energy
@@ -57,12 +57,7 @@ def _element_tangent(ue, dndX, wgp, p, form, fe, ke, mws, Fs, Fis, Js):
     for g in range(8):                      # first walk: F, F^-1, J, the volume
         G = dndX[g]
         F = Fs[g]
-        for i in range(3):
-            for K in range(3):
-                s = 1.0 if i == K else 0.0
-                for a in range(8):
-                    s += ue[a, i] * G[a, K]
-                F[i, K] = s
+        deformation_gradient(ue, G, F)
         J = inverse3(F, Fis[g])
         Js[g] = J
         jmin = min(jmin, J)

@@ -30,6 +30,17 @@ VOIGT = np.array([[0, 0], [1, 1], [2, 2], [0, 1], [1, 2], [0, 2]], dtype=np.int6
 
 
 @njit(cache=True)
+def deformation_gradient(ue, G, F):
+    """F (3, 3) = I + sum_a u_a (x) dN_a/dX at a Gauss point; ue (8, 3), G (8, 3) dN/dX."""
+    for i in range(3):
+        for K in range(3):
+            s = 1.0 if i == K else 0.0
+            for a in range(8):
+                s += ue[a, i] * G[a, K]
+            F[i, K] = s
+
+
+@njit(cache=True)
 def inverse3(a, out):
     """out = a^-1 for a 3x3 matrix; returns det a."""
     c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
