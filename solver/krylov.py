@@ -211,17 +211,14 @@ def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):
     Zr, AZr = recycled if recycled is not None and len(recycled[0]) else none
     # du0 joins the augmentation space with a free coefficient, and the iteration starts
     # from zero (module docstring): no solve more, and ||c - (A + D) du|| <= ||c|| from
-    # the start where D du0 is large (a slave's contact switching)
+    # the start where D du0 is large (a slave's contact switching). (A + D) Z = AZ + D Z
+    # = Q R, columns of rank-deficient directions (a zero du0) dropped.
     Zr, AZr = np.vstack([Zr, du0[None]]), np.vstack([AZr, Adu0[None]])
-    r0 = c
-    if len(Zr):                                  # (A + D) Z = AZ + D Z = Q R
-        Q, R = np.linalg.qr((AZr + (D @ Zr.T).T).T)
-        keep = np.abs(np.diag(R)) > 1e-12 * np.abs(np.diag(R)).max()
-        Zr, AZr, Q, R = Zr[keep], AZr[keep], Q[:, keep], R[np.ix_(keep, keep)]
-        qr0 = Q.T @ r0
-        r1 = r0 - Q @ qr0
-    else:
-        Q, R, qr0, r1 = np.zeros((n, 0)), np.zeros((0, 0)), np.zeros(0), r0
+    Q, R = np.linalg.qr((AZr + (D @ Zr.T).T).T)
+    keep = np.abs(np.diag(R)) > 1e-12 * np.abs(np.diag(R)).max()
+    Zr, AZr, Q, R = Zr[keep], AZr[keep], Q[:, keep], R[np.ix_(keep, keep)]
+    qr0 = Q.T @ c
+    r1 = c - Q @ qr0
     beta = float(np.linalg.norm(r1))
     if beta <= goal:
         y = np.linalg.solve(R, qr0)
@@ -246,7 +243,7 @@ def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):
         res = float(np.linalg.norm(e1[:j + 2] - H[:j + 2, :j + 1] @ y))
         if res <= goal or H[j + 1, j] == 0.0:
             k = j + 1
-            yr = np.linalg.solve(R, qr0 - B[:, :k] @ y) if len(Zr) else np.zeros(0)
+            yr = np.linalg.solve(R, qr0 - B[:, :k] @ y)
             du = y @ Z[:k] + yr @ Zr
             Adu = y @ V[:k] + yr @ AZr
             return du, Adu, k, (Z[:k], V[:k])

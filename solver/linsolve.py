@@ -49,8 +49,9 @@ def _cpus():
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
-# that run right after: on benchmarks/fast_path.py's case b 15.5-15.7 s against 16.6-17.5 s
-# in alternation (session 16; docs/fast_path.md).
+# that run right after: a scratch loop of a solve then a kernel call gave the kernels
+# 5-10 % more speed; the whole gesture of benchmarks/fast_path.py within the machine's drift
+# (session 16; docs/fast_path.md).
 os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
