@@ -27,7 +27,11 @@ substeps, Newton iterations, factorizations, assemblies with tangent, residual-o
 evaluations, the deepest contact penetration at the recorded times (penetration_mm, the
 contact terms' own gaps), and the largest difference (mm) between the paths' lip
 aperture and protrusion over the recorded times (the paths share the convergence
-criteria, so they must agree to a small multiple of the Newton tolerance). A run whose
+criteria, so they must agree to a small multiple of the Newton tolerance), and probe_s,
+the seconds of a fixed workload (probe(): a PARDISO factorization and solves, a dense
+product) just before and after the run: the machine's speed drifts (case a's wall time
+was 26.7 s and 38.0 s within three minutes in session 17), so wall times compare only
+at similar probes, or one run after the other. A run whose
 step fails after every cutback is reported (column failed) with its figures up to there.
 --profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.
@@ -131,8 +135,39 @@ def parse_knob(text):
     return key, {"true": True, "false": False}.get(raw.lower(), raw)
 
 
+def probe(n=26, reps=3):
+    """Seconds of a fixed workload (the best of reps): a 3D Laplacian of n^3 unknowns
+    factorized by the project's PARDISO in single precision (MKL_NUM_THREADS as set) and
+    solved ten times, and a dense 600 x 600 product: a gauge of the machine's speed at the
+    time of a run, whose wall time drifts with it (docs/fast_path.md, session 17)."""
+    import numpy as np
+    import scipy.sparse as sp
+    from solver.linsolve import available, make_solver
+    if "pardiso-single" not in available():
+        return float("nan")
+    d = sp.diags([-np.ones(n - 1), 2.0 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    eye = sp.identity(n)
+    K = (sp.kron(sp.kron(d, eye), eye) + sp.kron(sp.kron(eye, d), eye)
+         + sp.kron(sp.kron(eye, eye), d) + 1e-3 * sp.identity(n ** 3)).tocsr()
+    b = np.ones(n ** 3)
+    A = np.random.default_rng(0).standard_normal((600, 600))
+    lin, best = make_solver("pardiso-single"), np.inf
+    lin.factorize(K)                                      # the analysis, once
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        lin.factorize(K)
+        for _ in range(10):
+            lin.solve(b)
+        A @ A
+        best = min(best, time.perf_counter() - t0)
+    lin.release()
+    return best
+
+
 def run(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
-    """One run: a row of figures and the recorded outputs."""
+    """One run: a row of figures and the recorded outputs; probe_s: probe() before and
+    after it."""
+    before = probe()
     t0 = time.perf_counter()
     sim = build(case, duration, path, linear_solver, knobs, contact)
     t_build = time.perf_counter() - t0
@@ -156,6 +191,7 @@ def run(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
            "residuals": sysm.counters["residuals"] - c0["residuals"],
            "failed": failed or "-"}
     sim.release()
+    row["probe_s"] = f"{before:.3f} / {probe():.3f}"
     return row, rows
 
 
@@ -257,7 +293,7 @@ def main(argv=None):
             "newton_its", "factorizations", "assemblies", "residuals", "cutbacks",
             "penetration_mm",
             "d_aperture_mm", "d_protrusion_mm", "aperture_end_mm", "protrusion_end_mm",
-            "failed"] + (["set"] if args.knobs or args.contact != "both" else []) + (
+            "probe_s", "failed"] + (["set"] if args.knobs or args.contact != "both" else []) + (
                 ["vs_aperture_mm", "vs_protrusion_mm"] if against is not None else [])
     if args.records:
         args.records.write_text(json.dumps(saved))

@@ -22,11 +22,12 @@ protrusion against CPU time) of the default sweep of `python benchmarks/accuracy
 tolerances; docs/accuracy.md):
 
     preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
-    fast      medium half, 6300           0.21 / 0.06 mm                35
-    balanced  medium half 2 rows, 11025   0.16 / 0.15 mm                85
+    fast      medium half, 6300           0.21 / 0.06 mm                36
+    balanced  medium half 2 rows, 11025   0.16 / 0.15 mm                78
     accurate  fine half (2 rows), 50925   the reference                 2317
 
-(session 16; the older figures of the whole sweep in docs/accuracy.md.)
+(session 17's preset runs against session 16's fine reference, below; the older figures of
+the whole sweep in docs/accuracy.md.)
 
 Tolerances (substep error, largest substep, Newton's residual and last update):
 `accurate` DEFAULTS; `balanced` STEP_LOOSE, DEFAULTS but 5e-2 mm, Newton 1e-4 and 1e-2

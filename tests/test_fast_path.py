@@ -414,3 +414,18 @@ def test_substeps_share_a_factorization_only_while_the_damping_matrix_is_held(re
         assert stats.factorizations >= stats.substeps
     else:
         assert stats.factorizations <= most
+
+
+def test_benchmark_probe_times_a_fixed_workload():
+    """benchmarks/fast_path.py's machine gauge: a positive time where PARDISO installs
+    (NaN where not), smaller for a smaller workload."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.fast_path import probe
+    from solver.linsolve import available
+    t = probe(n=8, reps=1)
+    if "pardiso-single" not in available():
+        assert np.isnan(t)
+        return
+    assert 0.0 < t < probe(n=24, reps=1)
