@@ -127,6 +127,9 @@ class FaceFMU(Fmi2Slave):
 
     def terminate(self):
         if self.sim is not None:
+            # the linear solver's native memory, and MKL's pooled buffers where PARDISO ran
+            # (solver.linsolve.free_mkl_buffers: without them fmpy's process often aborted
+            # at its exit)
             self.sim.release()
 
     def _overrides(self):
@@ -144,10 +147,6 @@ class FaceFMU(Fmi2Slave):
         scene = resolve_scene(self.scene)
         if self.fidelity in REDUCED or scene.fidelity in REDUCED:
             out["rom_dirs"] = self._rom_dirs()
-        if scene.linear_solver == "auto":
-            # MKL PARDISO loaded inside an FMU made fmpy's process abort at exit (heap
-            # corruption found by mkl_core_fini); a scene can still ask for "pardiso"
-            out["linear_solver"] = "superlu"
         return out
 
     def _rom_dirs(self):

@@ -24,6 +24,7 @@ time of a transient run of the generic paper face went there).
 import contextlib
 import ctypes
 import os
+import sys
 
 import numpy as np
 import scipy.sparse as sp
@@ -44,8 +45,8 @@ def _cpus():
 # On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
 # two threads against 166 s with one, case b in 28.5 s against 34.6 s (session 8, with
 # MKL_NUM_THREADS=2 and 1 back to back; docs/fast_path.md). An older measurement had one
-# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU `auto` is
-# SuperLU: MKL is not loaded there.
+# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU as well
+# (since session 17; free_mkl_buffers below).
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
@@ -319,11 +320,13 @@ class Pardiso(_Reusable):
 
     def release(self):
         """Free the factorizations' memory (phase 0; MKL frees the rest at exit, and
-        freeing it twice with phase -1 corrupted the heap)."""
+        freeing it twice with phase -1 corrupted the heap), then MKL's pooled buffers
+        (free_mkl_buffers)."""
         for h in self._handles.values():
             h.release()
         self._U, self._source, self._active, self._K = None, None, None, None
         self.tag = None
+        free_mkl_buffers()
 
     def __del__(self):
         try:
@@ -349,6 +352,21 @@ def _pypardiso():
             os.environ["PYPARDISO_MKL_RT"] = str(libs[0])
     import pypardiso
     return pypardiso
+
+
+def free_mkl_buffers():
+    """Hand MKL's pooled memory back (mkl_free_buffers: the buffers its memory manager keeps
+    for reuse, none in use; later calls allocate again), where this process loaded MKL
+    through pypardiso. An FMU's process (fmpy's) aborted at its exit in 6 of 8 runs of three
+    PARDISO instances each without it (heap corruption reported by glibc), in none of 8
+    with it at the instances' terminate (session 17; facefmu/facefmu_slave.py)."""
+    path = os.environ.get("PYPARDISO_MKL_RT")
+    if not path or "pypardiso" not in sys.modules:
+        return
+    try:
+        ctypes.CDLL(path).mkl_free_buffers()
+    except (OSError, AttributeError):
+        pass
 
 
 def available():
