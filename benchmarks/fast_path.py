@@ -36,8 +36,8 @@ step fails after every cutback is reported (column failed) with its figures up t
 --profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.
 --quick: 0.05 s of the gesture. --linear-solver: the scene's (default auto: PARDISO in
-single precision where it installs, inside the FMU too since session 17). --md FILE writes
-the table as markdown too.
+single precision where it installs; the FMU takes SuperLU). --md FILE writes the table as
+markdown too.
 
 Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
 every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,

@@ -1,7 +1,7 @@
 """The full-order model through the FMU, by linear solver: wall time, outputs and exit code.
 
     python benchmarks/fmu_solver.py [--fmu FILE.fmu] [--fidelity balanced] [--duration 0.1]
-                                    [--solvers auto,superlu] [--repeat 2] [--instances 1]
+                                    [--solvers pardiso-single,superlu] [--repeat 2] [--instances 1]
 
 Each run is a fresh process that calls fmpy.simulate_fmu on the FMU (built here with
 build_fmu.py unless --fmu) with the scene written here (transient, lip and teeth contact,
@@ -76,7 +76,7 @@ def main(argv=None):
     ap.add_argument("--fmu", type=Path, help="a built FMU (default: build one)")
     ap.add_argument("--fidelity", default="balanced")
     ap.add_argument("--duration", type=float, default=0.1)
-    ap.add_argument("--solvers", default="auto,superlu")
+    ap.add_argument("--solvers", default="pardiso-single,superlu")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--instances", type=int, default=1)
     args = ap.parse_args(argv)

@@ -160,9 +160,8 @@ def markdown(rows, command, notes, problems, wall):
              f"substep is halved (limit {S.HALVING_TOLERANCE} mm plus "
              f"{S.HALVING_RELATIVE:.0%} of the case's largest lip-output excursion). fmu rows: the same case "
              "through the built FMU with fmpy; fmu_vs_solver_mm is the largest difference "
-             f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; the FMU takes "
-             "the scene's solver, as this process, since session 17; SuperLU before). "
-             f"Memory growth limit {S.MEMORY_LIMIT_MB} MB.", "",
+             f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; the FMU solves "
+             f"with SuperLU). Memory growth limit {S.MEMORY_LIMIT_MB} MB.", "",
              " | ".join(KEYS), " | ".join("---" for _ in KEYS)]
     lines += [" | ".join(cell(r.get(k, "-")) for k in KEYS) for r in rows]
     if notes:

@@ -127,9 +127,9 @@ class FaceFMU(Fmi2Slave):
 
     def terminate(self):
         if self.sim is not None:
-            # the linear solver's native memory, and MKL's pooled buffers where PARDISO ran
-            # (solver.linsolve.free_mkl_buffers: without them fmpy's process often aborted
-            # at its exit)
+            # the linear solver's native memory, and MKL's pooled buffers where a scene
+            # chose PARDISO (solver.linsolve.free_mkl_buffers: without them fmpy's process
+            # aborted at its exit in 6 of 8 runs of three instances)
             self.sim.release()
 
     def _overrides(self):
@@ -147,6 +147,13 @@ class FaceFMU(Fmi2Slave):
         scene = resolve_scene(self.scene)
         if self.fidelity in REDUCED or scene.fidelity in REDUCED:
             out["rom_dirs"] = self._rom_dirs()
+        if scene.linear_solver == "auto":
+            # MKL PARDISO loaded inside an FMU raises the rate at which fmpy's process
+            # aborts at its exit (heap corruption): with twelve instances per process 3 of
+            # 24 processes against none of 12 with SuperLU, even with MKL's buffers handed
+            # back at terminate (session 17, docs/fast_path.md); a scene can still ask for
+            # "pardiso-single", about four times faster
+            out["linear_solver"] = "superlu"
         return out
 
     def _rom_dirs(self):

@@ -45,8 +45,8 @@ def _cpus():
 # On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
 # two threads against 166 s with one, case b in 28.5 s against 34.6 s (session 8, with
 # MKL_NUM_THREADS=2 and 1 back to back; docs/fast_path.md). An older measurement had one
-# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU as well
-# (since session 17; free_mkl_buffers below).
+# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU `auto` is
+# SuperLU (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
@@ -318,19 +318,21 @@ class Pardiso(_Reusable):
                 x = self._active.call(33, self._U.shape[0], b)
         return x
 
-    def release(self):
+    def release(self, buffers=True):
         """Free the factorizations' memory (phase 0; MKL frees the rest at exit, and
-        freeing it twice with phase -1 corrupted the heap), then MKL's pooled buffers
-        (free_mkl_buffers)."""
+        freeing it twice with phase -1 corrupted the heap), then, with buffers and where a
+        factorization was freed, MKL's pooled buffers (free_mkl_buffers)."""
+        held = any(h.pattern is not None for h in self._handles.values())
         for h in self._handles.values():
             h.release()
         self._U, self._source, self._active, self._K = None, None, None, None
         self.tag = None
-        free_mkl_buffers()
+        if buffers and held:
+            free_mkl_buffers()
 
     def __del__(self):
-        try:
-            self.release()
+        try:                    # no call into MKL's memory manager from a finalizer
+            self.release(buffers=False)
         except Exception:
             pass
 
@@ -357,9 +359,10 @@ def _pypardiso():
 def free_mkl_buffers():
     """Hand MKL's pooled memory back (mkl_free_buffers: the buffers its memory manager keeps
     for reuse, none in use; later calls allocate again), where this process loaded MKL
-    through pypardiso. An FMU's process (fmpy's) aborted at its exit in 6 of 8 runs of three
-    PARDISO instances each without it (heap corruption reported by glibc), in none of 8
-    with it at the instances' terminate (session 17; facefmu/facefmu_slave.py)."""
+    through pypardiso. An FMU's process (fmpy's) with a scene on PARDISO aborted at its
+    exit in 6 of 8 runs of three instances each without it (heap corruption reported by
+    glibc), in none of 24 with it at the instances' terminate; with twelve instances, in 3
+    of 24 (session 17; facefmu/facefmu_slave.py)."""
     path = os.environ.get("PYPARDISO_MKL_RT")
     if not path or "pypardiso" not in sys.modules:
         return

@@ -583,10 +583,10 @@ def max_change(rows_a, rows_b, keys=LIP_OUTPUTS):
 
 # ------------------------------------------------------------------------ through the FMU
 
-# mm: FMU outputs against the same case run in this process. Both take the scene's solver
-# (PARDISO where it installs; until session 17 the FMU took SuperLU): where they differ,
-# Newton stops within its tolerances (newton_utol 1e-5 or 1e-4 mm), so the adaptive
-# substeps may differ, each within substep_tol.
+# mm: FMU outputs against the same case run in this process. The FMU solves with SuperLU,
+# the process with the scene's solver (PARDISO where it installs): Newton stops within its
+# tolerances (newton_utol 1e-5 or 1e-4 mm), so the adaptive substeps may differ, each
+# within substep_tol.
 FMU_MATCH_TOLERANCE = 1e-3
 
 
