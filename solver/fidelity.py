@@ -39,7 +39,8 @@ session 17: the sweep's `--only "preset balanced,preset fast" --merge` gave the 
 errors to 1e-4 mm (balanced 0.156 / 0.152 mm in 7.8 s of CPU against 8.3 s; fast 0.208 /
 0.063 mm, 3.6 against 3.4 s, within the noise); on benchmarks/fast_path.py, one run after
 the other, case a took 233 Newton iterations against 291 and 35.7 / 37.2 s against 38.6 /
-39.2 s, case b 181 against 227 and 12.2 / 13.4 s against 14.9 / 13.6 s, the lip outputs
+39.2 s, case b 181 against 227 and 12.2 / 13.4 s against 14.9 / 13.6 s (a later
+alternation in a slower hour: both cases within the machine's drift), the lip outputs
 within 1e-4 mm of session 16's tolerances (docs/fast_path.md). A residual tolerance of
 1e-3 took case a to a cutback.
 The sweep's tolerance runs, each preset at tighter substep tolerances and otherwise as it
