@@ -96,10 +96,10 @@ REFERENCE_FACE = Path(os.environ.get(
     Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
 LEVELS = ("coarse", "medium", "paper", "fine")
 KNOBS = ("anatomy", "level", "rows", "half", "substep_tol", "max_substep", "newton_rtol",
-         "newton_utol", "formulation", "stiffening")
+         "newton_utol", "lip_penalty", "formulation", "stiffening")
 # the Scene defaults, written out so that every row of the table says what it ran
 DEFAULT = dict(anatomy="generic", level="paper", rows=None, half=True, substep_tol=1e-3,
-               max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5,
+               max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5, lip_penalty=1.0,
                formulation="mean_dilatation", stiffening=True)
 TIGHT = dict(substep_tol=2.5e-4, max_substep=2.5e-3, newton_rtol=1e-8)
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)
@@ -120,6 +120,11 @@ def gesture(duration=GESTURE_DURATION, contact=True):
     data["scene"]["duration"] = duration
     data["effects"] = {"lip_contact": contact, "teeth_contact": contact}
     return data
+
+
+def knob(row, key):
+    """A run's knob; DEFAULT's where a table of an earlier version has no such column."""
+    return row.get(key, DEFAULT[key])
 
 
 def with_rows(knobs):
@@ -233,7 +238,7 @@ def preset_specs(runs, ref):
         knobs = with_rows({**DEFAULT, **PRESETS[name]})
         if LEVELS.index(knobs["level"]) > LEVELS.index(ref_level):
             continue
-        if not any(all(r[k] == knobs[k] for k in KNOBS) for r in runs):
+        if not any(all(knob(r, k) == knobs[k] for k in KNOBS) for r in runs):
             out.append(spec(f"preset {name}", ref, **knobs))
     return out
 
@@ -313,7 +318,7 @@ def mark_presets(table):
         knobs = with_rows({**DEFAULT, **PRESETS[name]})
         for r in table:
             if r["anatomy"] == "generic" and not r.get("fidelity") and \
-                    all(r[k] == knobs[k] for k in KNOBS):
+                    all(knob(r, k) == knobs[k] for k in KNOBS):
                 r["preset"] = name
 
 
@@ -333,7 +338,7 @@ def level_study(table):
         return [], {}, False
     same = [k for k in KNOBS if k != "level"]
     rows = sorted((r for r in table if r["reference"] == ref["label"] and "err_mm" in r
-                   and all(r[k] == ref[k] for k in same)),
+                   and all(knob(r, k) == knob(ref, k) for k in same)),
                   key=lambda r: LEVELS.index(r["level"]))
     rates = {}
     if len(rows) >= 2:
@@ -413,7 +418,7 @@ def plot(table, path, title, cost="wall_s"):
 
 
 COLUMNS = ["label", "fidelity", "level", "rows", "half", "substep_tol", "max_substep",
-           "newton_rtol", "newton_utol",
+           "newton_rtol", "newton_utol", "lip_penalty",
            "formulation", "stiffening", "ndof", "h_mm", "wall_s", "cpu_s", "rtf", "peak_mb",
            "err_aperture_mm", "err_protrusion_mm", "err_mm", "pareto", "preset",
            "reference", "anatomy", "error"]

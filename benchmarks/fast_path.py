@@ -42,8 +42,9 @@ markdown too.
 Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
 every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
 fixed_step, predictor), ``newton.X`` a field of solver.newton.NewtonOptions (rtol, utol,
-refactor_ratio, contact_update), ``contact.X`` an attribute of each contact term (smoothing, penalty),
-``damping.X`` of the damping term (refresh); ``--contact both|teeth|lips|none`` the
+refactor_ratio, contact_update), ``contact.X`` an attribute of each contact term (smoothing,
+penalty), ``lips.X`` and ``teeth.X`` of the lip or the teeth terms only, ``damping.X`` of the
+damping term (refresh); ``--contact both|teeth|lips|none`` the
 contact terms built. The table then gains the column "set". ``--records FILE`` saves
 the recorded outputs (JSON, per case and path); ``--against FILE`` adds the columns
 vs_aperture_mm and vs_protrusion_mm, the largest differences from the same case and path
@@ -119,7 +120,10 @@ def _knob_targets(sim, key):
         return [sim.integrator.damping]
     if group == "contact":
         return list(sim.contact)
-    raise SystemExit(f"--set {key}: the group must be transient, newton, damping or contact")
+    if group in ("lips", "teeth"):
+        return [t for t in sim.contact if ("teeth" in t.name) == (group == "teeth")]
+    raise SystemExit(f"--set {key}: the group must be transient, newton, damping, contact, "
+                     "lips or teeth")
 
 
 def parse_knob(text):

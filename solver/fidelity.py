@@ -73,16 +73,22 @@ generic face's).
 """
 
 from .errors import ParameterError
+from .terms.contact import PENALTY
 
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4, newton_utol=1e-4)
-DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5)
+DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5,
+                lip_penalty=PENALTY)
+# The lip/lip contact's penalty of `balanced` and `fast` (N/mm^3; PENALTY = 1 elsewhere):
+# session 18, the module docstring
+LIP_SOFT = 0.3
 # DEFAULTS but the substep error tolerance 5e-2 mm (1e-2 from session 7, 1e-3 before:
 # session 16), and Newton 1e-4 on the residual and 1e-2 mm on its last update (session 17;
 # 1e-5 / 1e-3 mm in session 16, 1e-6 / 1e-4 mm from session 12): the module docstring
-STEP_LOOSE = dict(DEFAULTS, substep_tol=5e-2, newton_rtol=1e-4, newton_utol=1e-2)
+STEP_LOOSE = dict(DEFAULTS, substep_tol=5e-2, newton_rtol=1e-4, newton_utol=1e-2,
+                  lip_penalty=LIP_SOFT)
 # LOOSE but the substep error tolerance and Newton's last update, as STEP_LOOSE's (so that
 # no preset is looser than a faster one): sessions 16 and 17
-FAST = dict(LOOSE, substep_tol=5e-2, newton_utol=1e-2)
+FAST = dict(LOOSE, substep_tol=5e-2, newton_utol=1e-2, lip_penalty=LIP_SOFT)
 
 PRESETS = {
     "fast": dict(level="medium", rows=1, half=True, formulation="mean_dilatation", **FAST),

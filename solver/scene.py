@@ -48,6 +48,8 @@ recorded outputs and, for standalone runs, activation schedules.
     linear_solver = "auto"          # | "pardiso-single" | "pardiso" | "superlu"
     newton_rtol = 1e-6              # residual over the load scale
     newton_utol = 1e-5              # mm, Newton's last update
+    lip_penalty = 1.0               # N/mm^3, the lip/lip contact's penalty (contact pressure
+                                    # per mm of penetration; solver/terms/contact.py)
     substep_tol = 1e-3              # mm, local error per substep
     max_substep = 5e-3              # s
     min_substep = 1e-7              # s
@@ -145,6 +147,7 @@ class Scene:
     linear_solver: str = "auto"
     newton_rtol: float = 1e-6
     newton_utol: float = 1e-5
+    lip_penalty: float = 1.0
     substep_tol: float = 1e-3
     max_substep: float = 5e-3
     min_substep: float = 1e-7
@@ -264,6 +267,7 @@ SECTIONS = {
                "linear_solver": ("linear_solver", _choice(SOLVERS)),
                "newton_rtol": ("newton_rtol", _number(0.0, 1e-1, strict_lo=True)),
                "newton_utol": ("newton_utol", _number(0.0, 1.0, strict_lo=True)),
+               "lip_penalty": ("lip_penalty", _number(0.0, 1e3, strict_lo=True)),
                "substep_tol": ("substep_tol", _number(0.0, strict_lo=True)),
                "max_substep": ("max_substep", _number(0.0, strict_lo=True)),
                "min_substep": ("min_substep", _number(0.0, strict_lo=True)),

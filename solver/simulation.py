@@ -44,7 +44,8 @@ def resolve_scene(scene):
 
 def _contact_terms(anatomy, scene):
     from .terms.contact import build_contact_terms
-    return build_contact_terms(anatomy, lips=scene.lip_contact, teeth=scene.teeth_contact)
+    return build_contact_terms(anatomy, lips=scene.lip_contact, teeth=scene.teeth_contact,
+                               lip_penalty=scene.lip_penalty)
 
 
 class Simulation:

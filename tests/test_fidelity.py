@@ -14,9 +14,10 @@ from pathlib import Path
 import pytest
 
 from solver.errors import ParameterError
-from solver.fidelity import FIDELITIES, PRESETS, apply_fidelity
+from solver.fidelity import FIDELITIES, LIP_SOFT, PRESETS, apply_fidelity
 from solver.scene import LEVELS, Scene, SceneError, parse_scene
 from solver.simulation import Simulation
+from solver.terms.contact import PENALTY
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))                    # benchmarks/ is not installed
@@ -50,6 +51,29 @@ def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
     for key in ("substep_tol", "max_substep", "newton_rtol", "newton_utol"):
         values = [PRESETS[n][key] for n in FIDELITIES]
         assert values == sorted(values, reverse=True), key
+    penalties = [PRESETS[n]["lip_penalty"] for n in FIDELITIES]   # stiffer: tighter
+    assert penalties == sorted(penalties) and penalties[-1] == PENALTY
+
+
+def test_the_lip_penalty_of_a_preset_reaches_the_lip_contact_only():
+    """`balanced` softens the lip/lip penalty (a numerical setting, docs/fast_path.md
+    session 18): its LipContact's slave stiffnesses are LIP_SOFT / PENALTY times those of
+    the scene's default, the teeth's stay; a scene file's own lip_penalty is checked."""
+    scene = Scene(duration=0.01, lip_contact=True, teeth_contact=True)
+    soft = Simulation(scene, fidelity="balanced")
+    stiff = Simulation(scene, fidelity="balanced", lip_penalty=PENALTY)
+    assert soft.scene.lip_penalty == LIP_SOFT < PENALTY == stiff.scene.lip_penalty
+    terms = [{t.name: t for t in sim.contact} for sim in (soft, stiff)]
+    assert terms[0]["lip_contact"].penalty == LIP_SOFT
+    assert terms[0]["lip_contact"].k == pytest.approx(terms[1]["lip_contact"].k
+                                                      * LIP_SOFT / PENALTY)
+    teeth = [n for n in terms[0] if n != "lip_contact"]
+    assert teeth and all(terms[0][n].penalty == PENALTY for n in teeth)
+    assert parse_scene({"solver": {"lip_penalty": 0.5}}).lip_penalty == 0.5
+    for bad in (0.0, -1.0, float("nan"), "stiff"):
+        with pytest.raises(SceneError) as info:
+            parse_scene({"solver": {"lip_penalty": bad}}, source="s.toml")
+        assert "solver.lip_penalty" in str(info.value)
 
 
 def test_unknown_fidelity_is_refused_naming_it_and_the_allowed():

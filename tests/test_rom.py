@@ -76,6 +76,13 @@ def test_model_file_round_trip_and_key_check(trained, tmp_path):
     other = trained["scene"].with_overrides(lip_contact=False)
     with pytest.raises(FaceFMUError, match="other settings"):
         load_model(path, model_key(other))
+    # a non-default lip penalty is part of the key; the default leaves earlier keys as
+    # they were (no such field)
+    assert "lip_penalty" not in model_key(trained["scene"])
+    soft = trained["scene"].with_overrides(lip_penalty=0.3)
+    assert model_key(soft)["lip_penalty"] == 0.3
+    with pytest.raises(FaceFMUError, match="other settings"):
+        load_model(path, model_key(soft))
 
 
 def test_trust_check_fires_far_outside_the_training_range(trained):

@@ -28,6 +28,7 @@ import numpy as np
 
 from .._cache import user_cache_dir
 from ..errors import FaceFMUError
+from ..terms.contact import PENALTY
 
 FORMAT = 1
 # The full-order physics a model's snapshots came from: bumped when a term's forces change
@@ -65,7 +66,10 @@ def model_key(scene):
             "inertia": bool(scene.inertia), "damping": bool(scene.damping),
             "alpha": float(scene.alpha), "beta": float(scene.beta),
             "density": float(scene.density), "formulation": scene.formulation,
-            "gravity": scene.gravity}
+            "gravity": scene.gravity,
+            # only where not the default, so that the keys of earlier models stand
+            **({"lip_penalty": float(scene.lip_penalty)} if scene.lip_penalty != PENALTY
+               else {})}
 
 
 def key_hash(key):

@@ -692,13 +692,13 @@ def joined_surfaces(surfaces, tol=1e-9):
 
 
 def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest_offset=True,
-                        **options):
+                        lip_penalty=None, **options):
     """The contact terms of an Anatomy: a RigidContact per rigid surface (surfaces that
     share a seam joined: joined_surfaces; named '<surface>_contact'; slaves: the movable
     nodes of the mesh boundary within teeth_distance (mm) of it at rest: the inner lip and
     cheek surfaces; rest_offset as RigidContact's) when teeth, a LipContact when lips
-    (mirrored on the 'midsagittal' nodes of a half anatomy); options go to every term
-    (penalty, smoothing)."""
+    (mirrored on the 'midsagittal' nodes of a half anatomy), with lip_penalty (N/mm^3)
+    where given; options go to every term (penalty, smoothing)."""
     mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
     terms = []
     if teeth:
@@ -709,6 +709,7 @@ def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest
                                       rest_offset=rest_offset, **options))
     if lips:
         mirror = mesh.node_sets["midsagittal"] if anatomy.half else None
+        lip = dict(options, **({} if lip_penalty is None else {"penalty": lip_penalty}))
         terms.append(LipContact(mesh, surfaces["upper_lip"], surfaces["lower_lip"],
-                                mirror_nodes=mirror, **options))
+                                mirror_nodes=mirror, **lip))
     return terms
