@@ -69,7 +69,9 @@ def trained(tmp_path_factory):
             "tasks": tasks, "results": results, "folder": folder}
 
 
-SESSION_15_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4)
+# (and the lip penalty of every preset until session 18, which softened balanced's)
+SESSION_15_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4,
+                           lip_penalty=1.0)
 
 
 def gesture_both_ways(option, duration, count):
