@@ -83,8 +83,10 @@ benchmarks/fast_path.py the search cut such steps to s ~ 0.02 over up to ten res
 evaluations, and the next iterate refactorized anyway (a stale tangent without the
 stiffness of a contact that had closed since). On a reused factorization an iterate
 costs a residual and a solve (no tangent), and the residual at the accepted step, when it
-was the last one evaluated, is the next iterate's. A failed solve invalidates the
-factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
+was the last one evaluated, is the next iterate's. Once a step has been dropped in a
+call (``krylov_after_stale``, on by default), the later iterates of the call skip the
+plain reused direction (the Krylov one below, else a new factorization). A failed solve
+invalidates the factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
 every iterate.
 
 Partial refresh (``partial_refresh``; the default None: as reuse): where the system has
@@ -181,6 +183,14 @@ class NewtonOptions:
     # terms interpolated, the contact evaluated) before evaluating it whole; module
     # docstring.
     secant_search: bool = True
+    # Once a reused factorization's step has been dropped in a call, later iterates of that
+    # call skip the plain reused direction and go to the Krylov one (or a refactorization):
+    # on benchmarks/fast_path.py at balanced's soft lip penalty (session 18) 59 of 80
+    # reused directions of case a were dropped; with this, case a 162 -> 156 Newton
+    # iterations and 259 -> 218 residuals, 20.1 / 20.5 s against 20.9 / 21.4 s, case b
+    # 166 -> 157 and 235 -> 214, 11.4 / 11.1 s against 12.0 / 12.0 s, in alternation (at
+    # the stiff lips of session 17 it cost case a a cutback). docs/fast_path.md.
+    krylov_after_stale: bool = True
 
 
 @dataclass
@@ -468,6 +478,7 @@ def _newton(system, u0, targets, lin, opts, tag):
             return None, None, report
         slow = it > 0 and not balanced and _slow(rn, report.residuals[it - 1],
                                                  opts.rtol * ref + opts.atol, it, opts)
+        slow = slow or (opts.krylov_after_stale and report.stale_steps > 0)
         try:
             du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, slow,
                                      balanced, report, contact, krylov)

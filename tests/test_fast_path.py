@@ -13,7 +13,7 @@ from solver.linsolve import SuperLU, _openblas_threads, available, make_solver, 
 from solver.meshgen import box
 from solver.newton import NewtonOptions, newton
 from solver.transient import Transient
-from conftest import SESSION_15_BALANCED
+from conftest import SESSION_15_BALANCED, assert_same_lips, gesture_both_ways
 
 TIP_FORCE = (0.0, 0.0, -1e-4)       # N: about 1.3 mm of tip deflection, a nonlinear bend
 
@@ -457,3 +457,23 @@ def test_benchmark_probe_times_a_fixed_workload():
         assert np.isnan(t)
         return
     assert 0.0 < t < probe(n=24, reps=1)
+
+
+def test_after_a_dropped_reused_step_a_call_tries_no_more_reused_directions(monkeypatch):
+    """krylov_after_stale: once a reused factorization's step has been dropped in a Newton
+    call, the call's later iterates skip the plain reused direction, so that no call
+    drops more than one step; without it the lip gesture has calls that drop several.
+    The outputs agree to a small multiple of Newton's last update."""
+    import solver.transient as T
+    calls = []
+    newton = T.newton
+
+    def recording(*args, **kwargs):
+        out = newton(*args, **kwargs)
+        calls.append(out[2].stale_steps)
+        return out
+    monkeypatch.setattr(T, "newton", recording)
+    runs = gesture_both_ways("krylov_after_stale", 0.06,
+                             lambda sim: (max(calls), calls.clear())[0])
+    assert runs[False][0] >= 2 and runs[True][0] == 1
+    assert_same_lips(runs[False][1], runs[True][1], tol=1e-3)
