@@ -86,8 +86,8 @@ costs a residual and a solve (no tangent), and the residual at the accepted step
 was the last one evaluated, is the next iterate's. Once a step has been dropped in a
 call (``krylov_after_stale``, on by default), the later iterates of the call skip the
 plain reused direction (the Krylov one below, else a new factorization). A failed solve
-invalidates the factorization. ``reuse = False`` is full Newton: the tangent assembled and factorized at
-every iterate.
+invalidates the factorization. ``reuse = False`` is full Newton: the tangent assembled and
+factorized at every iterate.
 
 Partial refresh (``partial_refresh``; the default None: as reuse): where the system has
 nonsmooth terms (contact), a refactorization for a key that already has one (convergence
