@@ -10,7 +10,7 @@ below; docs/realtime.md).
 
 A preset replaces the numerical fields of a scene: the mesh level (of the generic face; an
 ANSYS face keeps its own mesh), half face, substep error tolerance and largest substep,
-Newton tolerance and element formulation. The model itself (anatomy, muscles, effects such
+Newton tolerance, element formulation and the lip/lip contact's penalty. The model itself (anatomy, muscles, effects such
 as stiffening and contact, schedules, outputs) stays the scene's. Where several settings
 meet, the most specific wins: keyword overrides of Simulation (and the command line's
 --level, --full) over the preset given to Simulation, that preset over the scene file,
@@ -23,10 +23,10 @@ tolerances; docs/accuracy.md):
 
     preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
     fast      medium half, 6300           0.21 / 0.06 mm                36
-    balanced  medium half 2 rows, 11025   0.16 / 0.15 mm                78
+    balanced  medium half 2 rows, 11025   0.16 / 0.15 mm                76
     accurate  fine half (2 rows), 50925   the reference                 2317
 
-(session 17's preset runs against session 16's fine reference, below; the older figures of
+(session 18's preset runs against session 16's fine reference, below; the older figures of
 the whole sweep in docs/accuracy.md.)
 
 Tolerances (substep error, largest substep, Newton's residual and last update):
@@ -43,6 +43,14 @@ the other, case a took 233 Newton iterations against 291 and 35.7 / 37.2 s again
 alternation in a slower hour: both cases within the machine's drift), the lip outputs
 within 1e-4 mm of session 16's tolerances (docs/fast_path.md). A residual tolerance of
 1e-3 took case a to a cutback.
+Lip penalty (`lip_penalty`, N/mm^3): `balanced` and `fast` 0.3 (LIP_SOFT) since session 18,
+`accurate` 1 (PENALTY, the default of a scene). The lip/lip contact was two thirds of the
+reference face's time on benchmarks/fast_path.py; at 0.3 case a took 162 Newton iterations
+against 233 and 17.5 s against 26.5 s one call after the other, its deepest penetration
+0.030 mm (under the 0.05 mm of solver/stability.py), the lip outputs within 3.4e-3 mm; the
+sweep's preset runs gave the same errors against fine to 1e-3 mm (balanced 7.6 s of CPU,
+fast 3.6 s; docs/fast_path.md, docs/accuracy.md, session 18). At 0.2 the penetration was
+0.042 mm, at 0.1 0.076 mm.
 The sweep's tolerance runs, each preset at tighter substep tolerances and otherwise as it
 is, in one call (`python benchmarks/accuracy_vs_time.py --cost cpu --only
 "preset balanced,preset fast,balanced at substep_tol 0.01,..." --merge DIR`, two runs at a
