@@ -10,8 +10,9 @@ below; docs/realtime.md).
 
 A preset replaces the numerical fields of a scene: the mesh level (of the generic face; an
 ANSYS face keeps its own mesh), half face, substep error tolerance and largest substep,
-Newton tolerance, element formulation and the lip/lip contact's penalty. The model itself (anatomy, muscles, effects such
-as stiffening and contact, schedules, outputs) stays the scene's. Where several settings
+Newton tolerance, element formulation and the lip/lip contact's penalty. The model
+itself (anatomy, muscles, effects such as stiffening and contact, schedules, outputs)
+stays the scene's. Where several settings
 meet, the most specific wins: keyword overrides of Simulation (and the command line's
 --level, --full) over the preset given to Simulation, that preset over the scene file,
 and in a scene file its own keys over its [scene] fidelity.
