@@ -90,6 +90,7 @@ if __package__ in (None, ""):                     # run as a script: the reposit
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.sweep import Sweep  # noqa: E402
 from benchmarks.table import report  # noqa: E402
+from solver.terms.contact import PENALTY  # noqa: E402
 
 REFERENCE_FACE = Path(os.environ.get(
     "FACEFMU_REFERENCE_FACE",
@@ -99,7 +100,7 @@ KNOBS = ("anatomy", "level", "rows", "half", "substep_tol", "max_substep", "newt
          "newton_utol", "lip_penalty", "formulation", "stiffening")
 # the Scene defaults, written out so that every row of the table says what it ran
 DEFAULT = dict(anatomy="generic", level="paper", rows=None, half=True, substep_tol=1e-3,
-               max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5, lip_penalty=1.0,
+               max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5, lip_penalty=PENALTY,
                formulation="mean_dilatation", stiffening=True)
 TIGHT = dict(substep_tol=2.5e-4, max_substep=2.5e-3, newton_rtol=1e-8)
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4)

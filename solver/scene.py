@@ -88,6 +88,7 @@ from .anatomy.base import MUSCLE_NAMES
 from .errors import FaceFMUError
 from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
 from .linsolve import SOLVERS
+from .terms.contact import PENALTY
 
 ANALYSES = ("static", "transient")
 LEVELS = ("coarse", "medium", "paper", "fine")
@@ -147,7 +148,7 @@ class Scene:
     linear_solver: str = "auto"
     newton_rtol: float = 1e-6
     newton_utol: float = 1e-5
-    lip_penalty: float = 1.0
+    lip_penalty: float = PENALTY
     substep_tol: float = 1e-3
     max_substep: float = 5e-3
     min_substep: float = 1e-7
