@@ -122,6 +122,8 @@ class FaceFMU(Fmi2Slave):
         except Exception as exc:
             self.log(f"cannot build the model: {exc}", Fmi2Status.error)
             raise
+        for warning in self.sim.scene.contact_warnings():
+            self.log(warning, Fmi2Status.warning)
         self.sim.t = self.time
         self._publish()
 

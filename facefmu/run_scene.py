@@ -1,4 +1,4 @@
-"""`facefmu run SCENE`: a standalone run of a built-in scene or a scene file.
+"""`facefmu run [SCENE]`: a standalone run of a built-in scene or a scene file.
 
 Writes OUT/SCENE.csv (the recorded outputs and activations at every output interval),
 OUT/SCENE.png (outputs and activations over time) and, with --vtu, one VTU file per
@@ -13,8 +13,9 @@ from solver.simulation import Simulation, builtin_scenes
 
 
 def add_arguments(parser):
-    parser.add_argument("scene", help=f"a built-in scene ({', '.join(builtin_scenes())}) "
-                                      "or a scene TOML file")
+    parser.add_argument("scene", nargs="?", default="default",
+                        help=f"a built-in scene ({', '.join(builtin_scenes())}) or a scene "
+                             "TOML file (default: default, the paper's model for speech)")
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.add_argument("--anatomy", help="override the scene's anatomy ('generic' or a folder)")
     parser.add_argument("--level", help="override the scene's level")
@@ -42,6 +43,8 @@ def run(args):
 
     print(f"scene {name}: {sim.scene.description}")
     print(f"  terms: {', '.join(sim.term_names)}")
+    for warning in sim.scene.contact_warnings():
+        print(f"  warning: {warning}")
     rows = sim.run(progress=not args.quiet, on_record=on_record)
     with open(out / f"{name}.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))

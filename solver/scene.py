@@ -31,8 +31,8 @@ recorded outputs and, for standalone runs, activation schedules.
     damping = true                  # transient only
     stiffening = true
     stiffening_rule = "volume"      # "volume" | "intersect" (the paper's whole bricks)
-    lip_contact = false
-    teeth_contact = false
+    lip_contact = true              # lip on lip, frictionless (the paper's model); a scene
+    teeth_contact = true            # that sets either false lets lips and teeth interpenetrate
     gravity = "none"                # "none" | "upright" | "supine"
 
     [gravity]
@@ -137,8 +137,8 @@ class Scene:
     damping: bool = True
     stiffening: bool = True
     stiffening_rule: str = "volume"
-    lip_contact: bool = False
-    teeth_contact: bool = False
+    lip_contact: bool = True
+    teeth_contact: bool = True
     gravity: str = "none"
     g: float = 9.81
     alpha: float = 40.0
@@ -173,6 +173,16 @@ class Scene:
         if self.gravity != "none":
             on.append("gravity")
         return on
+
+    def contact_warnings(self):
+        """Sentences naming the paper's contacts that this scene leaves out (empty when it
+        has lip/lip and lip/teeth contact)."""
+        off = [n for n, on in (("lip/lip", self.lip_contact), ("lip/teeth", self.teeth_contact))
+               if not on]
+        if not off:
+            return []
+        return [f"scene '{self.name}' leaves out {' and '.join(off)} contact: lips and teeth "
+                "can interpenetrate"]
 
     def activations(self, t):
         """dict muscle -> activation at time t from the schedules (0 where unset)."""

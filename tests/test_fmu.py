@@ -97,6 +97,48 @@ def test_two_fmu_cosimulation_with_the_motor_control_model(fmu, tmp_path):
     assert rows[-1]["lip_aperture"] > rows[0]["lip_aperture"]        # /a/ opens the lips
 
 
+@pytest.fixture(scope="module")
+def generic_probe():
+    """The default scene's anatomy (coarse generic half face) and its penetration probe."""
+    from solver.anatomy.load import load_anatomy
+    from solver.stability import Probe
+    anatomy = load_anatomy("generic", "coarse", True)
+    return Probe(anatomy)
+
+
+def _penetrations(probe, state_files):
+    import numpy as np
+    depths = []
+    for path in state_files:
+        with np.load(path) as z:
+            u = z["sim.u"].reshape(-1, 3)
+        depths.append(probe.penetrations(u))
+    return depths
+
+
+def test_the_default_fmu_keeps_the_lips_in_front_of_the_teeth(fmu, tmp_path, generic_probe):
+    """OOP = 1 for 0.3 s with the FMU's default parameters: the lips protrude, and no lip
+    node goes behind the teeth (measured here, outside the FMU, on its serialized states
+    every 50 ms)."""
+    from solver.stability import CONTACT_TOLERANCE
+    res, stdout = _run("held_activation.py", fmu, tmp_path, "OOP", "0.3")
+    rows = res["rows"]
+    assert rows[-1]["lip_protrusion"] > 0.2                   # OOP protrudes the lips
+    assert max(r["contact_force"] for r in rows) > 0.0        # contact carries load
+    assert "interpenetrate" not in stdout
+    depths = _penetrations(generic_probe, res["states"])
+    assert len(depths) == 6
+    assert max(t for _, t in depths) <= CONTACT_TOLERANCE, depths
+
+
+def test_a_scene_without_contact_is_named_and_warned_about(fmu, tmp_path, generic_probe):
+    """The no_contact scene is there when asked for by name, and its warning is logged:
+    OOP = 1 pulls the lips back into the teeth."""
+    res, stdout = _run("held_activation.py", fmu, tmp_path, "OOP", "0.1", "no_contact")
+    assert "scene 'no_contact' leaves out lip/lip and lip/teeth contact" in stdout
+    assert res["rows"][-1]["contact_force"] == 0.0
+
+
 def test_a_step_the_solver_cannot_take_is_refused_and_the_state_kept(fmu, tmp_path):
     scene = tmp_path / "too_strong.toml"
     scene.write_text('[muscles]\ndriven = ["OOP"]\nforce_scale = { OOP = 300.0 }\n'

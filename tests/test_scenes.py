@@ -29,8 +29,39 @@ def test_static_scene_builds_no_mass_or_damping_and_undriven_muscles_no_cables()
 
 def test_transient_scene_builds_what_it_asks_for():
     sim = Simulation(parse_scene({"muscles": {"driven": ["OOP"]},
-                                  "effects": {"damping": False, "stiffening": False}}))
+                                  "effects": {"damping": False, "stiffening": False,
+                                              "lip_contact": False, "teeth_contact": False}}))
     assert sim.term_names == ["elasticity", "cables", "inertia"]
+
+
+def test_the_default_is_the_papers_model_for_speech():
+    """Simulation() and a scene file that names no effect: all ten muscles, stiffening,
+    inertia, Rayleigh damping (alpha 40 1/s, beta 0.03 s), lip/lip and lip/teeth contact."""
+    for scene in (Simulation().scene, parse_scene({})):
+        assert scene.driven == MUSCLE_NAMES
+        assert scene.effects == ["elasticity", "cables", "stiffening", "inertia", "damping",
+                                 "lip_contact", "teeth_contact"]
+        assert (scene.alpha, scene.beta) == (40.0, 0.03)
+        assert scene.contact_warnings() == []
+    sim = Simulation()
+    assert {"upper_teeth+lower_teeth_contact", "lip_contact", "inertia", "damping"} <= set(
+        sim.term_names)
+    assert Simulation("no_contact").scene.contact_warnings() == [
+        "scene 'no_contact' leaves out lip/lip and lip/teeth contact: lips and teeth can "
+        "interpenetrate"]
+
+
+EFFECT_KEYS = ("inertia", "damping", "stiffening", "stiffening_rule", "lip_contact",
+               "teeth_contact", "gravity")
+
+
+@pytest.mark.parametrize("name", builtin_scenes())
+def test_every_builtin_scene_states_its_effects(name):
+    import tomllib
+
+    from solver.simulation import BUILTIN_DIR
+    data = tomllib.loads((BUILTIN_DIR / f"{name}.toml").read_text())
+    assert set(EFFECT_KEYS) <= set(data.get("effects", {})), name
 
 
 @pytest.mark.parametrize("text,key", [

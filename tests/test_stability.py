@@ -89,7 +89,7 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
 
 @pytest.fixture(scope="module")
 def sim():
-    return Simulation("default")
+    return Simulation("no_contact")
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +131,7 @@ def test_checks_catch_nan_inversion_penetration_and_bounds(fresh, probe):
     assert lips > S.CONTACT_TOLERANCE
     assert {n for n, _, _ in probe.inside} & set(upper.tolist())    # upper-lip nodes inside
     assert not any("penetration" in p for p in S.check_state(fresh, probe)[1])  # contact off
-    contact = Simulation("default", lip_contact=True, loaded_anatomy=fresh.anatomy)
+    contact = Simulation("default", loaded_anatomy=fresh.anatomy)
     contact.face.model.u = u
     assert any("lip penetration" in p for p in S.check_state(contact, probe)[1])
 
