@@ -1,32 +1,44 @@
-"""Build FaceFMU and the LipMotorControl FMU, connect them, and co-simulate a speech
-gesture /a/ -> /u/ -> /i/ -> /p/ through fmpy.
+"""Build FaceFMU and the LipMotorControl FMU, connect them, and co-simulate a sequence of
+speech lip targets through fmpy; exit 1 if a target is missed.
 
-    python examples/cosim_speech.py [--stop 0.7] [--step 0.005] [--out out/cosim]
+    python examples/cosim_speech.py [--step 0.005] [--out out/cosim] [--targets FILE]
+                                    [--scene default] [--level coarse] [--fidelity ""]
 
-The controller's ten activations drive the face; the face's lip aperture and protrusion
-feed back to the controller. Prints achieved against target per phoneme (at the end of
-each target's window) and writes a CSV and a PNG of targets, outputs and activations.
+The controller's ten activations drive the face; the face's lip aperture, protrusion and
+width feed back to the controller. A target is met when, at the end of its window, the
+aperture and protrusion errors are each within 0.3 mm, and the width error within 0.5 mm
+where the width is targeted. Prints the tracking table, the wall time and the real-time
+factor, and writes a CSV and a PNG of targets, outputs and activations.
 """
 
 import argparse
 import csv
+import json
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-HERE = Path(__file__).resolve().parent
+CONTROL = Path(__file__).resolve().parent / "motor_control"
+TOLERANCE = {"lip_aperture": 0.3, "lip_protrusion": 0.3, "lip_width": 0.5}     # mm
+OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width")
+TARGETS = {"lip_aperture": "target_aperture", "lip_protrusion": "target_protrusion",
+           "lip_width": "target_width"}
+MUSCLES = ("LLSAN", "LAO", "ZYG", "RIS", "BUC", "DAO", "DLI", "MENT", "OOP", "OOM")
 
 
 def build_fmus(dest):
-    """Build both FMUs in a child process: building imports the slave scripts, and a
+    """Build both FMUs in child processes: building imports the slave scripts, and a
     solver package imported here would shadow the FMU's own copy at run time."""
-    import subprocess
+    dest = Path(dest)
     subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)],
                    check=True, stdout=subprocess.DEVNULL)
     subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                    str(HERE / "motor_control" / "lip_motor_control.py"), "-d", str(dest),
-                    "--no-external-tool"], check=True, stdout=subprocess.DEVNULL)
+                    str(CONTROL / "lip_motor_control.py"), "-d", str(dest),
+                    "--no-external-tool", str(CONTROL / "lipmc_inverse.py"),
+                    str(CONTROL / "inverse_model.json")],
+                   check=True, stdout=subprocess.DEVNULL, cwd=CONTROL)
     return dest / "FaceFMU.fmu", dest / "LipMotorControl.fmu"
 
 
@@ -51,76 +63,86 @@ def instantiate(path, name, start_values=None):
     return fmu, vr
 
 
-def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, progress=True):
-    """Step both FMUs together; returns a list of row dicts."""
-    from tqdm import tqdm
-    sys.path.insert(0, str(HERE / "motor_control"))
-    from lip_motor_control import MUSCLES
+def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, control_params=None):
+    """Step both FMUs together, as a fixed-step master does (libcosim, SSP): each step both
+    FMUs take the other's outputs at t as their inputs, then step to t + step. Returns rows:
+    the target active over [t, t + step], the activations applied over it, and the face's
+    outputs at t + step."""
     face, fv = instantiate(face_fmu, "face", face_params)
-    ctrl, cv = instantiate(control_fmu, "control")
+    ctrl, cv = instantiate(control_fmu, "control", control_params)
     rows, t = [], 0.0
-    n = int(round(stop / step))
-    for _ in tqdm(range(n), desc="co-simulation", unit="step", disable=not progress):
-        ap, pr = face.getReal([fv["lip_aperture"], fv["lip_protrusion"]])
-        ctrl.setReal([cv["lip_aperture"], cv["lip_protrusion"]], [ap, pr])
-        ctrl.doStep(t, step)
+    for _ in range(int(round(stop / step))):
+        y = face.getReal([fv[o] for o in OUTPUTS])
         acts = ctrl.getReal([cv[m] for m in MUSCLES])
+        targets = ctrl.getReal([cv[TARGETS[o]] for o in OUTPUTS])
+        phoneme = ctrl.getString([cv["phoneme"]])[0]
+        ctrl.setReal([cv[o] for o in OUTPUTS], y)
         face.setReal([fv[m] for m in MUSCLES], acts)
+        ctrl.doStep(t, step)
         face.doStep(t, step)
         t += step
-        ap, pr, width = face.getReal([fv["lip_aperture"], fv["lip_protrusion"], fv["lip_width"]])
-        tap, tpr = ctrl.getReal([cv["target_aperture"], cv["target_protrusion"]])
-        phon = ctrl.getString([cv["phoneme"]])[0]
-        rows.append({"time": t, "phoneme": phon.decode() if isinstance(phon, bytes) else phon,
-                     "target_aperture": tap, "target_protrusion": tpr, "lip_aperture": ap,
-                     "lip_protrusion": pr, "lip_width": width, **dict(zip(MUSCLES, acts))})
+        y = face.getReal([fv[o] for o in OUTPUTS])
+        rows.append({"time": t, "phoneme": phoneme.decode() if isinstance(phoneme, bytes)
+                     else phoneme, **{TARGETS[o]: v for o, v in zip(OUTPUTS, targets)},
+                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts))})
     for f in (face, ctrl):
         f.terminate()
         f.freeInstance()
     return rows
 
 
-def summary(rows):
-    """Achieved against target at the end of each phoneme's window."""
-    last = {}
-    for r in rows:
-        last[r["phoneme"]] = r
-    lines = ["phoneme  target ap  achieved ap  target pr  achieved pr   (mm)"]
-    for ph, r in last.items():
-        lines.append(f"  /{ph}/     {r['target_aperture']:7.2f}  {r['lip_aperture']:10.2f}  "
-                     f"{r['target_protrusion']:9.2f}  {r['lip_protrusion']:10.2f}")
+def tracking(rows, targets):
+    """Per target, at the end of its window: [(target dict, {output: (target, achieved,
+    error, tolerance, met)})] for the targeted outputs."""
+    out, end = [], 0.0
+    for tg in targets:
+        end += tg["duration"]
+        row = min(rows, key=lambda r: abs(r["time"] - end))
+        checks = {}
+        for o in OUTPUTS:
+            if o in tg["targeted"]:
+                err = row[o] - tg[o]
+                checks[o] = (tg[o], row[o], err, TOLERANCE[o], abs(err) <= TOLERANCE[o])
+        out.append((tg, row["time"], checks))
+    return out
+
+
+def table(results):
+    lines = ["target  window end   output           target  achieved   error   tol   result",
+             "------  ----------   --------------   ------  --------   -----   ---   ------"]
+    for tg, t, checks in results:
+        for k, (o, (target, got, err, tol, met)) in enumerate(checks.items()):
+            head = f"  /{tg['phoneme']}/   {t:7.3f} s " if k == 0 else " " * 21
+            lines.append(f"{head}  {o:15s} {target:7.2f}  {got:8.2f}  {err:+6.2f}  {tol:4.1f}"
+                         f"   {'met' if met else 'MISSED'}")
     return "\n".join(lines)
 
 
-def plot(rows, path):
+def plot(rows, targets, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     t = [r["time"] for r in rows]
-    fig, ax = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-    for key, c in (("aperture", "C0"), ("protrusion", "C1")):
-        ax[0 if key == "aperture" else 1].plot(t, [r[f"target_{key}"] for r in rows], "--",
-                                              color=c, label=f"target {key}")
-        ax[0 if key == "aperture" else 1].plot(t, [r[f"lip_{key}"] for r in rows], color=c,
-                                              label=f"lip {key}")
-    muscles = [k for k in rows[0] if k.isupper()]
-    for m in muscles:
+    fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
+    for a, o in zip(ax, OUTPUTS):
+        a.plot(t, [r[o] for r in rows], color="C0", label=o.replace("_", " "))
+        a.plot(t, [r[TARGETS[o]] for r in rows], "--", color="C1", label="target")
+        a.set_ylabel(f"{o.split('_')[1]} (mm)")
+    for m in MUSCLES:
         if max(r[m] for r in rows) > 0.01:
-            ax[2].plot(t, [r[m] for r in rows], label=m)
-    ax[0].set_ylabel("aperture (mm)")
-    ax[1].set_ylabel("protrusion (mm)")
-    ax[2].set_ylabel("activation")
-    ax[2].set_xlabel("time (s)")
+            ax[3].plot(t, [r[m] for r in rows], label=m)
+    ax[3].set_ylabel("activation")
+    ax[3].set_xlabel("time (s)")
+    end = 0.0
+    for tg in targets:
+        for a in ax:
+            a.axvline(end, color="0.8", lw=0.8)
+        ax[0].annotate(f"/{tg['phoneme']}/", (end + 0.005, 1.0),
+                       xycoords=("data", "axes fraction"), va="top")
+        end += tg["duration"]
     for a in ax:
-        a.legend(loc="upper right", fontsize=8, ncol=3)
+        a.legend(loc="upper right", fontsize=8, ncol=4)
         a.grid(alpha=0.3)
-    starts, seen = [], set()
-    for r in rows:
-        if r["phoneme"] not in seen:
-            seen.add(r["phoneme"])
-            starts.append((r["time"], r["phoneme"]))
-    for ts, ph in starts:
-        ax[0].annotate(f"/{ph}/", (ts, 1.0), xycoords=("data", "axes fraction"), va="top")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -128,29 +150,47 @@ def plot(rows, path):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--stop", type=float, default=0.7)
-    ap.add_argument("--step", type=float, default=0.005)
+    ap.add_argument("--step", type=float, default=0.005, help="communication step (s)")
     ap.add_argument("--out", default=str(ROOT / "out" / "cosim"))
-    ap.add_argument("--level", default="coarse")
+    ap.add_argument("--targets", help="JSON list of targets (default: the identified ones "
+                                      "in examples/motor_control/inverse_model.json)")
+    ap.add_argument("--scene", default="default", help="FaceFMU's scene parameter")
+    ap.add_argument("--level", default="coarse", help="FaceFMU's level parameter")
+    ap.add_argument("--fidelity", default="", help="FaceFMU's fidelity parameter")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    targets = json.loads((Path(args.targets) if args.targets else
+                          CONTROL / "inverse_model.json").read_text())
+    targets = targets["targets"] if isinstance(targets, dict) else targets
+    stop = sum(tg["duration"] for tg in targets)
     t0 = time.perf_counter()
     face_fmu, control_fmu = build_fmus(out)
     print(f"built {face_fmu.name} and {control_fmu.name} in {time.perf_counter() - t0:.1f} s")
+    face = {"scene": args.scene, "level": args.level, "fidelity": args.fidelity}
+    control = {"targets_file": str(Path(args.targets).resolve())} if args.targets else {}
+    print(f"co-simulating {stop:.2f} s of speech at {args.step * 1e3:g} ms steps: FaceFMU "
+          f"scene {args.scene!r}, level {args.level!r}, fidelity {args.fidelity or 'the scene'!r}")
     t0 = time.perf_counter()
-    rows = cosimulate(face_fmu, control_fmu, args.stop, args.step, {"level": args.level})
+    rows = cosimulate(face_fmu, control_fmu, stop, args.step, face, control)
     wall = time.perf_counter() - t0
-    print(f"co-simulated {args.stop} s in {wall:.1f} s of wall time "
-          f"({args.step * 1e3:g} ms communication steps)")
-    print(summary(rows))
+    results = tracking(rows, targets)
+    print(table(results))
+    met = sum(all(c[4] for c in checks.values()) for _, _, checks in results)
+    print(f"co-simulation: {wall:.1f} s of wall time for {stop:.2f} s of speech "
+          f"(real-time factor {wall / stop:.1f})")
     with open(out / "cosim.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    plot(rows, out / "cosim.png")
+    plot(rows, targets, out / "cosim.png")
     print(f"wrote {out / 'cosim.csv'} and {out / 'cosim.png'}")
+    if met < len(results):
+        print(f"FAILED: {len(results) - met} of {len(results)} targets missed")
+        return 1
+    print(f"all {len(results)} targets met")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

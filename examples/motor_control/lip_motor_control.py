@@ -1,97 +1,137 @@
-"""LipMotorControl: a small motor-control model as an FMI 2.0 co-simulation FMU.
+"""LipMotorControl: a speech motor-control model as an FMI 2.0 co-simulation FMU.
 
-It turns a sequence of speech lip targets into the ten face muscle activations:
-feedforward commands per target, integral feedback on the face's lip aperture and
-protrusion (FMU inputs), and first-order activation dynamics (time constant tau, 30 ms):
-a(t + h) = u + (a(t) - u) exp(-h / tau), exact for a command u held over the step.
+It turns a sequence of lip targets into the ten face muscle activations:
 
-Targets (aperture, protrusion in mm) are sized to what this face can do with its lip
-muscles alone (the jaw is fixed in the model): see examples/README.md.
+* Feedforward from an inverse model of the face. lipmc_inverse.LipMap f is the face's
+  static map from four muscle synergies w (open, round, spread, close) to the lip
+  aperture, protrusion and width, identified from FaceFMU's own responses (identify.py,
+  stored in inverse_model.json, which this FMU carries). Each step the command is the
+  map's bounded inverse of the desired outputs r*, its redundancy resolved towards the
+  target's articulatory intent.
+* Feedback on the face's outputs y (FMU inputs), by an internal model (an efference
+  copy): a forward model predicts the outputs p from the activations actually sent,
+      dp/dt = (f(w_a) - p) / tau_face,
+  and the difference between the face and its prediction, filtered,
+      dd/dt = (y - p - d) / tau_fb,
+  is taken off the target: r* = r - d. At steady state d is the model's error there and
+  the face reaches r. Anti-windup: the forward model runs on the activations after
+  saturation (0..1) and activation dynamics, so d estimates model error only; it never
+  integrates an error that the bounded muscles cannot remove (the command stays at its
+  bound instead of winding up).
+* Activation dynamics: first order, faster to activate than to relax (Zajac 1989;
+  tau_act 15 ms, tau_deact 40 ms by default), exact for a command held over the step:
+      a(t + h) = u + (a(t) - u) exp(-h / tau),  tau = tau_act if u > a else tau_deact,
+  per synergy (its muscles share its activation) and hence per muscle.
+
+Targets (mm) and their windows come from inverse_model.json (identify.py chose them from
+what the identified map says the face reaches) or from a JSON file named by the
+`targets_file` parameter: a list of {"phoneme", "duration" (s), "targeted" (a list of
+output names), "lip_aperture", "lip_protrusion", "lip_width" (mm), optionally "intent"
+({synergy: weight})}. After the last window the last target is held.
 """
 
+import json
 import math
+from pathlib import Path
+
+import numpy as np
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 
-MUSCLES = ("LLSAN", "LAO", "ZYG", "RIS", "BUC", "DAO", "DLI", "MENT", "OOP", "OOM")
+from lipmc_inverse import MUSCLES, NAMES, OUTPUTS, LipMap, activations
 
-# phoneme: (start s, aperture mm, protrusion mm, feedforward activations)
-SEQUENCE = (
-    ("a", 0.00, 2.0, -0.6, {"LLSAN": 0.8, "DLI": 0.8}),
-    ("u", 0.15, 0.6, 0.0, {"OOP": 0.5, "OOM": 0.2}),
-    ("i", 0.35, 1.2, -1.0, {"RIS": 0.7, "ZYG": 0.6, "LLSAN": 0.4, "DLI": 0.4}),
-    ("p", 0.55, 0.0, -1.5, {"OOM": 0.9, "OOP": 0.6, "MENT": 0.3}),
-)
-OPENERS = ("LLSAN", "DLI")          # aperture up
-CLOSERS = ("OOM",)                  # aperture down
-PROTRUDERS = ("OOP",)               # protrusion up
+TARGET_NAMES = {"lip_aperture": "target_aperture", "lip_protrusion": "target_protrusion",
+                "lip_width": "target_width"}
 
 
-def target_at(t):
-    """(name, aperture, protrusion, feedforward) of the target active at time t."""
-    active = SEQUENCE[0]
-    for item in SEQUENCE:
-        if t >= item[1] - 1e-12:
-            active = item
-    name, _, aperture, protrusion, feedforward = active
-    return name, aperture, protrusion, feedforward
+def segment_at(targets, t):
+    """Index of the target whose window holds time t (s); the last one after the end."""
+    end = 0.0
+    for k, tg in enumerate(targets):
+        end += tg["duration"]
+        if t < end - 1e-9:
+            return k
+    return len(targets) - 1
 
 
 class LipMotorControl(Fmi2Slave):
     author = "FaceFMU developers"
-    description = "Speech lip targets to ten muscle activations, with feedback"
+    description = ("Speech lip targets to ten face muscle activations: inverse-model "
+                   "feedforward, integral feedback with anti-windup, activation dynamics")
     default_experiment = None
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.lip_aperture, self.lip_protrusion = 0.0, 0.0
-        for name in ("lip_aperture", "lip_protrusion"):
+        cont = dict(variability=Fmi2Variability.continuous)
+        for name in OUTPUTS:
+            setattr(self, name, 0.0)
             self.register_variable(Real(name, causality=Fmi2Causality.input,
-                                        variability=Fmi2Variability.continuous,
-                                        description=f"face feedback: {name} (mm)"))
+                                        description=f"face feedback: {name} (mm)", **cont))
         for m in MUSCLES:
             setattr(self, m, 0.0)
             self.register_variable(Real(m, causality=Fmi2Causality.output,
-                                        variability=Fmi2Variability.continuous,
-                                        description=f"activation of {m}"))
-        self.target_aperture, self.target_protrusion, self.phoneme = 0.0, 0.0, "a"
-        self.register_variable(Real("target_aperture", causality=Fmi2Causality.output,
-                                    variability=Fmi2Variability.discrete))
-        self.register_variable(Real("target_protrusion", causality=Fmi2Causality.output,
-                                    variability=Fmi2Variability.discrete))
-        self.register_variable(String("phoneme", causality=Fmi2Causality.output,
-                                      variability=Fmi2Variability.discrete))
-        self.tau, self.gain = 0.03, 3.0
-        self.register_variable(Real("tau", causality=Fmi2Causality.parameter,
-                                    variability=Fmi2Variability.fixed,
-                                    description="activation time constant (s)"))
-        self.register_variable(Real("gain", causality=Fmi2Causality.parameter,
-                                    variability=Fmi2Variability.fixed,
-                                    description="integral feedback gain (1/(mm s))"))
-        self._i_ap, self._i_pr = 0.0, 0.0
-        self._update_target(0.0)
+                                        description=f"activation of {m}", **cont))
+        disc = dict(causality=Fmi2Causality.output, variability=Fmi2Variability.discrete)
+        for name in TARGET_NAMES.values():
+            setattr(self, name, 0.0)
+            self.register_variable(Real(name, description=f"{name} (mm)", **disc))
+        self.phoneme = ""
+        self.register_variable(String("phoneme", description="the current target", **disc))
+        fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
+        self.tau_act, self.tau_deact, self.tau_fb, self.tau_face = 0.015, 0.04, 0.03, 0.0
+        for name, text in (("tau_act", "activation time constant (s)"),
+                           ("tau_deact", "deactivation time constant (s)"),
+                           ("tau_fb", "feedback filter time constant (s)"),
+                           ("tau_face", "the forward model's time constant of the face "
+                                        "(s; 0: the identified one)")):
+            self.register_variable(Real(name, description=text, **fixed))
+        self.targets_file = ""
+        self.register_variable(String("targets_file", description="JSON list of targets "
+                                      "('' : the ones in inverse_model.json)", **fixed))
+        self._map, self._targets, self._k = None, None, -1
+        self._w = None                           # commanded synergy weights (4,)
+        self._a = np.zeros(len(NAMES))           # synergy activations, after dynamics
+        self._p = self._d = None                 # prediction, filtered model error (3,)
 
-    def _update_target(self, t):
-        name, ap, pr, _ = target_at(t)
-        if name != self.phoneme:
-            self._i_ap, self._i_pr = 0.0, 0.0          # fresh integrators per target
-        self.phoneme, self.target_aperture, self.target_protrusion = name, ap, pr
+    def exit_initialization_mode(self):
+        self._map, data = LipMap.load(Path(self.resources) / "inverse_model.json")
+        if self.tau_face <= 0.0:
+            self.tau_face = float(data["tau_face"])
+        self._targets = data["targets"]
+        if self.targets_file:
+            self._targets = json.loads(Path(self.targets_file).read_text())
+        self._p = self._map(self._a)
+        self._d = np.zeros(len(OUTPUTS))
+        self._enter(0)
+
+    def _enter(self, k):
+        """Start target k: publish it and its output weights and intent."""
+        tg = self._targets[k]
+        self._k, self.phoneme = k, tg["phoneme"]
+        for name, out in TARGET_NAMES.items():
+            setattr(self, out, float(tg[name]))
+        self._r = np.array([float(tg[name]) for name in OUTPUTS])
+        self._q = np.array([1.0 if name in tg["targeted"] else 0.0 for name in OUTPUTS])
+        intent = tg.get("intent", {})
+        self._ref = np.array([float(intent.get(n, 0.0)) for n in NAMES])
 
     def do_step(self, current_time, step_size):
-        name, ap, pr, feedforward = target_at(current_time)
-        self._update_target(current_time)
-        self._i_ap += self.gain * (ap - self.lip_aperture) * step_size
-        self._i_pr += self.gain * (pr - self.lip_protrusion) * step_size
-        command = {m: feedforward.get(m, 0.0) for m in MUSCLES}
-        for m in OPENERS:
-            command[m] += max(self._i_ap, 0.0)
-        for m in CLOSERS:
-            command[m] += max(-self._i_ap, 0.0)
-        for m in PROTRUDERS:
-            command[m] += max(self._i_pr, 0.0)
-        decay = math.exp(-step_size / self.tau)
-        for m in MUSCLES:
-            u = min(max(command[m], 0.0), 1.0)
-            setattr(self, m, u + (getattr(self, m) - u) * decay)
-        self._update_target(current_time + step_size)
+        h = step_size
+        k = segment_at(self._targets, current_time)
+        if k != self._k:
+            self._enter(k)
+        y = np.array([getattr(self, name) for name in OUTPUTS])
+        self._d += (y - self._p - self._d) * (1.0 - math.exp(-h / self.tau_fb))
+        self._w = self._map.inverse(self._r - self._q * self._d, self._q, w0=self._w,
+                                    w_ref=self._ref)
+        for i, u in enumerate(self._w):
+            tau = self.tau_act if u > self._a[i] else self.tau_deact
+            self._a[i] = u + (self._a[i] - u) * math.exp(-h / tau)
+        for m, a in activations(self._a).items():
+            setattr(self, m, a)
+        f = self._map(self._a)
+        self._p = f + (self._p - f) * math.exp(-h / self.tau_face)
+        k = segment_at(self._targets, current_time + h)
+        if k != self._k:            # publish the target of the window that starts now
+            self._enter(k)
         return True

@@ -1,0 +1,235 @@
+"""Identify the face's static lip map from FaceFMU's own responses, and choose speech
+targets that the face can reach.
+
+    python examples/motor_control/identify.py [--samples 40] [--hold 0.3] [--jobs 2]
+
+Each sample holds one set of synergy weights w (lipmc_inverse.SYNERGIES) from rest for
+`hold` seconds through FaceFMU (fmpy, 10 ms communication steps, the FMU rolled back to
+its rest state between samples) and records the lip aperture, protrusion and width at the
+end. The samples are the 16 corners of [0, 1]^4, its centre, and a seeded Latin hypercube
+for the rest. A quadratic polynomial in w is fitted by least squares; its leave-one-out
+errors are printed and stored.
+
+The face's time constant (for the controller's forward model of the response) is fitted
+to the same step responses, recorded every 10 ms.
+
+Targets: each phoneme is an articulatory intent (synergy weights, PHONEMES below); its
+target is what the fitted map gives for that intent, rounded to 0.1 mm. So every target is
+one the face reaches at steady state, by the identified model.
+
+Writes examples/motor_control/inverse_model.json (the map, its fit, the samples, the
+targets, and the command, face parameters, commit and date that produced it), which the
+controller FMU carries.
+"""
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE))
+from lipmc_inverse import (FLOORED, NAMES, OUTPUTS, SOFTNESS, LipMap,  # noqa: E402
+                           activations, features)
+
+DATA = HERE / "inverse_model.json"
+STEP = 0.01
+# The face the map is identified on: the FMU's parameters (the main job's face).
+FACE = {"scene": "default", "level": "coarse", "fidelity": ""}
+
+# phoneme: (synergy intent (open, round, spread, close), duration s, targeted outputs)
+# durations: 100-250 ms per segment; widths are targeted where they mark the vowel
+PHONEMES = (
+    ("a", (0.85, 0.0, 0.0, 0.0), 0.20, ("lip_aperture", "lip_protrusion")),
+    ("u", (0.0, 0.9, 0.0, 0.3), 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
+    ("i", (0.4, 0.0, 0.8, 0.0), 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
+    ("p", (0.0, 0.3, 0.0, 1.0), 0.15, ("lip_aperture", "lip_protrusion")),
+    ("o", (0.6, 0.6, 0.0, 0.0), 0.20, ("lip_aperture", "lip_protrusion")),
+)
+
+
+def design(n, seed=7):
+    """Sample weights, shape (n, 4): the corners, the centre, then a Latin hypercube."""
+    corners = np.array([[(k >> b) & 1 for b in range(4)] for k in range(16)], dtype=float)
+    pts = [corners, np.full((1, 4), 0.5)]
+    rest = n - 17
+    if rest > 0:
+        rng = np.random.default_rng(seed)
+        lhs = (np.stack([rng.permutation(rest) for _ in range(4)], axis=1)
+               + rng.random((rest, 4))) / rest
+        pts.append(lhs)
+    return np.vstack(pts)[:n]
+
+
+def build_face(dest):
+    subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)],
+                   check=True, stdout=subprocess.DEVNULL)
+    return Path(dest) / "FaceFMU.fmu"
+
+
+def respond(fmu_path, weights, hold):
+    """The lip outputs every STEP of each hold (shape (len(weights), hold / STEP, 3)),
+    through the FMU; runs in a worker process (one FMU instance, rolled back to rest
+    between samples)."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(fmu_path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="identify")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    for key, value in FACE.items():
+        fmu.setString([vr[key]], [value])
+    fmu.exitInitializationMode()
+    rest = fmu.getFMUstate()
+    out = []
+    for w in weights:
+        fmu.setFMUstate(rest)
+        acts = activations(w)
+        fmu.setReal([vr[m] for m in acts], list(acts.values()))
+        t, trajectory = 0.0, []
+        for _ in range(int(round(hold / STEP))):
+            fmu.doStep(t, STEP)
+            t += STEP
+            trajectory.append(fmu.getReal([vr[o] for o in OUTPUTS]))
+        out.append(trajectory)
+    fmu.freeFMUstate(rest)
+    fmu.terminate()
+    fmu.freeInstance()
+    return np.array(out)
+
+
+def fit_output(Phi, y, floored):
+    """Coefficients (15,) of one output: least squares; for a floored output, censored
+    least squares (samples at the floor count only where the fit is above it), by
+    active-set iteration."""
+    use = np.ones(len(y), dtype=bool)
+    if floored:
+        closed = y <= 1e-9
+        use = ~closed
+    for _ in range(50):
+        c = np.linalg.lstsq(Phi[use], y[use], rcond=None)[0]
+        if not floored:
+            return c
+        new = ~closed | (Phi @ c > 0.0)
+        if np.array_equal(new, use):
+            break
+        use = new
+    return c
+
+
+def fit(W, Y):
+    """Coefficients (3, 15), and the leave-one-out errors (n, 3) of y(w) in mm."""
+    Phi = features(W)
+    coef = np.array([fit_output(Phi, Y[:, k], f) for k, f in enumerate(FLOORED)])
+    loo = np.zeros_like(Y)
+    for i in range(len(W)):
+        keep = np.arange(len(W)) != i
+        c = np.array([fit_output(Phi[keep], Y[keep, k], f) for k, f in enumerate(FLOORED)])
+        loo[i] = LipMap(c)(W[i]) - Y[i]
+    return coef, loo
+
+
+def time_constant(T, rest):
+    """The face's time constant tau (s): the first-order response
+    y(t) = y_end + (rest - y_end) exp(-t / tau) fitted by least squares (a scan of tau)
+    over the step responses T (shape (n, steps, 3)) from the rest outputs `rest`
+    (shape (3,)), over the outputs that change by more than 0.5 mm."""
+    t = STEP * np.arange(1, T.shape[1] + 1)
+    end = T[:, -1, :]
+    change = end - rest
+    take = (np.abs(change) > 0.5)[:, None, :]
+    taus = np.linspace(0.005, 0.2, 196)
+    cost = [np.sum(take * (T - (end[:, None] - change[:, None]
+                                * np.exp(-t / tau)[None, :, None])) ** 2) for tau in taus]
+    return float(taus[int(np.argmin(cost))])
+
+
+def commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=40)
+    ap.add_argument("--hold", type=float, default=0.3, help="s held per sample")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", default=str(DATA))
+    ap.add_argument("--refit", action="store_true", help="fit the samples stored in --out "
+                    "again (new targets or model) without running the face")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    if args.refit:
+        old = json.loads(Path(args.out).read_text())
+        W, T = np.array(old["samples"]["weights"]), np.array(old["samples"]["trajectories"])
+        Y = T[:, -1]
+        args.hold, command = old["provenance"]["hold"], old["provenance"]["command"]
+    else:
+        W = design(args.samples)
+        command = "python examples/motor_control/identify.py " + " ".join(
+            argv if argv is not None else sys.argv[1:])
+        with tempfile.TemporaryDirectory() as tmp:
+            fmu = build_face(tmp)
+            chunks = np.array_split(W, args.jobs)
+            with ProcessPoolExecutor(args.jobs) as pool:
+                T = np.vstack(list(pool.map(respond, [fmu] * args.jobs, chunks,
+                                            [args.hold] * args.jobs)))
+        Y = T[:, -1]
+    wall = time.perf_counter() - t0
+    coef, loo = fit(W, Y)
+    tau = time_constant(T, T[0, -1])          # sample 0: no activation, the rest state
+    lip_map = LipMap(coef)
+    resid = Y - np.array([lip_map(w) for w in W])
+    rms = np.sqrt(np.mean(resid ** 2, axis=0))
+    loo_rms = np.sqrt(np.mean(loo ** 2, axis=0))
+    print(f"{len(W)} responses of {args.hold} s through FaceFMU"
+          + ("(stored)" if args.refit else f" in {wall:.0f} s"))
+    print("output           range (mm)        fit rms   leave-one-out rms / max (mm)")
+    for k, name in enumerate(OUTPUTS):
+        print(f"{name:15s} {Y[:, k].min():7.2f} .. {Y[:, k].max():6.2f}   {rms[k]:7.3f}"
+              f"   {loo_rms[k]:7.3f} / {np.abs(loo[:, k]).max():.3f}")
+    print(f"time constant of the face's step responses: {tau * 1e3:.0f} ms")
+    targets = []
+    for name, intent, duration, targeted in PHONEMES:
+        y = lip_map(np.array(intent))
+        targets.append({"phoneme": name, "intent": dict(zip(NAMES, intent)),
+                        "duration": duration, "targeted": list(targeted),
+                        **{o: round(max(float(v), 0.0) if f else float(v), 1)
+                           for o, v, f in zip(OUTPUTS, y, FLOORED)}})
+        print(f"  /{name}/ intent {intent}: " + ", ".join(
+            f"{o} {v:.2f}" for o, v in zip(OUTPUTS, y)))
+    data = {
+        "about": "Static lip map of FaceFMU and speech targets (examples/motor_control/"
+                 "identify.py; lipmc_inverse.py explains the model)",
+        "synergies": list(NAMES), "outputs": list(OUTPUTS), "coef": coef.tolist(),
+        "floored": list(FLOORED), "softness": SOFTNESS,
+        "fit": {"rms": rms.tolist(), "loo_rms": loo_rms.tolist(),
+                "loo_max": np.abs(loo).max(axis=0).tolist()},
+        "tau_face": tau,
+        "samples": {"weights": W.tolist(), "trajectories": np.round(T, 5).tolist()},
+        "targets": targets,
+        "provenance": {"command": command.strip(),
+                       "face": FACE, "hold": args.hold, "step": STEP,
+                       "commit": commit(),
+                       "date": datetime.now(timezone.utc).strftime("%Y-%m-%d")},
+    }
+    Path(args.out).write_text(json.dumps(data, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
