@@ -84,19 +84,6 @@ def test_stepwise_rollback_refusals_and_two_instances(fmu, tmp_path):
     assert res["second_instance"]["lip_protrusion"] != 0.0
 
 
-def test_two_fmu_cosimulation_with_the_motor_control_model(fmu, tmp_path):
-    run = subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                          str(ROOT / "examples" / "motor_control" / "lip_motor_control.py"),
-                          "-d", str(tmp_path), "--no-external-tool"],
-                         capture_output=True, text=True, cwd=tmp_path)
-    assert run.returncode == 0, run.stderr
-    rows, _ = _run("cosim.py", fmu, tmp_path, str(tmp_path / "LipMotorControl.fmu"))
-    assert len(rows) == 6 and rows[0]["phoneme"] == "a"
-    # the controller's activations rise with its 30 ms time constant and reach the face
-    assert 0 < rows[0]["LLSAN"] < rows[-1]["LLSAN"] < 1
-    assert rows[-1]["lip_aperture"] > rows[0]["lip_aperture"]        # /a/ opens the lips
-
-
 @pytest.fixture(scope="module")
 def generic_probe():
     """The default scene's anatomy (coarse generic half face) and its penetration probe."""
