@@ -39,7 +39,7 @@ top functions.
 single precision where it installs; the FMU takes SuperLU). --md FILE writes the table as
 markdown too.
 
-Experiments (docs/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
+Experiments (docs/dev-notes/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
 every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
 fixed_step, predictor), ``newton.X`` a field of solver.newton.NewtonOptions (rtol, utol,
 refactor_ratio, contact_update), ``contact.X`` an attribute of each contact term (smoothing,
@@ -143,7 +143,7 @@ def probe(n=26, reps=3):
     """Seconds of a fixed workload (the best of reps): a 3D Laplacian of n^3 unknowns
     factorized by the project's PARDISO in single precision (MKL_NUM_THREADS as set) and
     solved ten times, and a dense 600 x 600 product: a gauge of the machine's speed at the
-    time of a run, whose wall time drifts with it (docs/fast_path.md, session 17)."""
+    time of a run, whose wall time drifts with it (docs/dev-notes/fast_path.md, session 17)."""
     import numpy as np
     import scipy.sparse as sp
     from solver.linsolve import available, make_solver

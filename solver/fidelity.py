@@ -42,7 +42,7 @@ errors to 1e-4 mm (balanced 0.156 / 0.152 mm in 7.8 s of CPU against 8.3 s; fast
 the other, case a took 233 Newton iterations against 291 and 35.7 / 37.2 s against 38.6 /
 39.2 s, case b 181 against 227 and 12.2 / 13.4 s against 14.9 / 13.6 s (a later
 alternation in a slower hour: both cases within the machine's drift), the lip outputs
-within 1e-4 mm of session 16's tolerances (docs/fast_path.md). A residual tolerance of
+within 1e-4 mm of session 16's tolerances (docs/dev-notes/fast_path.md). A residual tolerance of
 1e-3 took case a to a cutback.
 Lip penalty (`lip_penalty`, N/mm^3): `balanced` and `fast` 0.3 (LIP_SOFT) since session 18,
 `accurate` 1 (PENALTY, the default of a scene). The lip/lip contact was two thirds of the
@@ -50,7 +50,7 @@ reference face's time on benchmarks/fast_path.py; at 0.3 case a took 162 Newton 
 against 233 and 17.5 s against 26.5 s one call after the other, its deepest penetration
 0.030 mm (under the 0.05 mm of solver/stability.py), the lip outputs within 3.4e-3 mm; the
 sweep's preset runs gave the same errors against fine to 1e-3 mm (balanced 7.6 s of CPU,
-fast 3.6 s; docs/fast_path.md, docs/accuracy.md, session 18). At 0.2 the penetration was
+fast 3.6 s; docs/dev-notes/fast_path.md, docs/accuracy.md, session 18). At 0.2 the penetration was
 0.042 mm, at 0.1 0.076 mm.
 The sweep's tolerance runs, each preset at tighter substep tolerances and otherwise as it
 is, in one call (`python benchmarks/accuracy_vs_time.py --cost cpu --only
@@ -70,7 +70,7 @@ The larger error of the two rises by 5 % (balanced) and 12 % (fast) for 41 % and
 less time: the mesh error still dominates. On the contact gesture of
 benchmarks/fast_path.py balanced took case a from 406 to 281 Newton iterations and case b
 from 362 to 206, lip outputs within 0.015 mm of the old preset's
-(docs/fast_path.md), case a without a cutback. (In session 7 LOOSE, and in session 12
+(docs/dev-notes/fast_path.md), case a without a cutback. (In session 7 LOOSE, and in session 12
 Newton at 1e-3 mm, stalled case a at t = 0.18 s; the contact law has been mended since, in
 sessions 14 and 15.)
 Through-thickness rows buy more than in-plane levels (one row per layer stalls

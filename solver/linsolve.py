@@ -44,7 +44,7 @@ def _cpus():
 # dask's nanny sets one thread per sweep worker) chose; set before pypardiso loads MKL.
 # On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
 # two threads against 166 s with one, case b in 28.5 s against 34.6 s (session 8, with
-# MKL_NUM_THREADS=2 and 1 back to back; docs/fast_path.md). An older measurement had one
+# MKL_NUM_THREADS=2 and 1 back to back; docs/dev-notes/fast_path.md). An older measurement had one
 # thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU `auto` is
 # SuperLU (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
@@ -52,7 +52,7 @@ os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
 # that run right after: a scratch loop of a solve then a kernel call gave the kernels
 # 5-10 % more speed; the whole gesture of benchmarks/fast_path.py within the machine's drift
-# (session 16; docs/fast_path.md).
+# (session 16; docs/dev-notes/fast_path.md).
 os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
@@ -143,7 +143,7 @@ class SuperLU(_Reusable):
 # 0.011 against 0.035 s; case b's: 0.005 against 0.018 s; factorizations as fast, the
 # relative residual 2.5e-13 against 3.2e-13 (session 9, a scratch timing on tangents saved
 # from benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
-# apart; figures of the whole gesture in docs/fast_path.md).
+# apart; figures of the whole gesture in docs/dev-notes/fast_path.md).
 # A single-precision factorization whose first solve leaves ||K x - b|| above this times
 # ||b|| is made again in double (case b's tangents: about 6e-5).
 SINGLE_CHECK = 1e-3
@@ -236,7 +236,7 @@ class Pardiso(_Reusable):
     precision "double", or "single": the factorization and the solves in float32 (the
     right-hand side and the solution converted), about 40 % faster to factorize and half
     the time to solve; the solution's relative residual ||K x - b|| / ||b|| is then about
-    1e-5 to 1e-4 instead of 1e-13 (case b's tangent, docs/fast_path.md). Newton's residual
+    1e-5 to 1e-4 instead of 1e-13 (case b's tangent, docs/dev-notes/fast_path.md). Newton's residual
     stays in double, so the converged state is that of the double solver to the Newton
     tolerance; a direction only converges a little less. A single factorization falls back
     to double (the factorization made again, counted as one) where it perturbed a pivot,

@@ -40,7 +40,7 @@ meets the test the model met, or if the model's search ended at its best step (a
 in the contact force, where g has no root: the exact search ended there too, after ten
 residuals) and the state is admissible; else the exact search runs. That evaluation is
 the next iterate's residual. A contact evaluation costs about a twelfth of a residual on
-the reference face (1.6 against 18-20 ms). On benchmarks/fast_path.py's case a (docs/fast_path.md,
+the reference face (1.6 against 18-20 ms). On benchmarks/fast_path.py's case a (docs/dev-notes/fast_path.md,
 session 14) both changes took the residuals from 1,693 to 1,016, the lip outputs within
 2e-5 mm.
 
@@ -97,7 +97,7 @@ u_k (System.nonsmooth_tangent) and adds the rest of the key's last full assembly
 matrix is K_smooth(u_j) + K_contact(u_k). Within a
 substep the tissue's tangent changes little (without contact a substep converges on its
 first factorization at a rate of 0.02-0.04 per iteration) while the contact's is what
-slowed the iteration (docs/fast_path.md, session 12). Only within ``partial_reach`` (mm,
+slowed the iteration (docs/dev-notes/fast_path.md, session 12). Only within ``partial_reach`` (mm,
 the largest nodal displacement) of the full assembly's state: farther (a large jump, the
 bar of tests/test_fast_path.py) the tissue's tangent may be what went stale, and
 everything is assembled; a new key (the next substep) assembles everything too.
@@ -117,7 +117,7 @@ terms' part at u_k (and the status that the step predicts) by GMRES precondition
 the factorization, its earlier solves recycled (solver.krylov); it is searched along like
 a new factorization's direction, and where GMRES does not reach its tolerance within its
 budget of solves the tangent is refactorized. It trades factorizations for solves:
-benchmarks/fast_path.py (docs/fast_path.md, session 13) case a 400 -> 144
+benchmarks/fast_path.py (docs/dev-notes/fast_path.md, session 13) case a 400 -> 144
 factorizations and 1-16 % less time, case b 182 -> 111 and a fifth less time with SuperLU,
 between 6 % more and 13 % less with single-precision PARDISO (whose factorization costs
 only six or seven solves), depending on the hour.
@@ -155,7 +155,7 @@ class NewtonOptions:
     # does not converge fast either. benchmarks/fast_path.py, one run after the other
     # (session 9): case a 254 s at 0.7 against 278 s at 0.5 and 320 s at 0.1 (501, 540,
     # 613 factorizations; the same cutbacks, outputs within 3e-6 mm); case b within the
-    # machine's drift (284 against 311 factorizations; 0.8 no better). docs/fast_path.md.
+    # machine's drift (284 against 311 factorizations; 0.8 no better). docs/dev-notes/fast_path.md.
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
     # Correct each direction for the contact status the step predicts, by low-rank updates
@@ -189,7 +189,7 @@ class NewtonOptions:
     # reused directions of case a were dropped; with this, case a 162 -> 156 Newton
     # iterations and 259 -> 218 residuals, 20.1 / 20.5 s against 20.9 / 21.4 s, case b
     # 166 -> 157 and 235 -> 214, 11.4 / 11.1 s against 12.0 / 12.0 s, in alternation (at
-    # the stiff lips of session 17 it cost case a a cutback). docs/fast_path.md.
+    # the stiff lips of session 17 it cost case a a cutback). docs/dev-notes/fast_path.md.
     krylov_after_stale: bool = True
 
 

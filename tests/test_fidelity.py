@@ -56,7 +56,7 @@ def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
 
 
 def test_the_lip_penalty_of_a_preset_reaches_the_lip_contact_only():
-    """`balanced` softens the lip/lip penalty (a numerical setting, docs/fast_path.md
+    """`balanced` softens the lip/lip penalty (a numerical setting, docs/dev-notes/fast_path.md
     session 18): its LipContact's slave stiffnesses are LIP_SOFT / PENALTY times those of
     the scene's default, the teeth's stay; a scene file's own lip_penalty is checked."""
     scene = Scene(duration=0.01, lip_contact=True, teeth_contact=True)

@@ -64,7 +64,7 @@ kink for Newton's line search to stop at; the penetration at a force f >= k_i s 
 as with the pure law, and a node pressed by less stays within s of the surface. The
 tangent is exact but for the curvature of the distance around an edge or a vertex closer
 than s. Measured (`python benchmarks/fast_path.py --only b --paths new --duration 0.1
---set contact.smoothing=S`, docs/fast_path.md): 43.9 s, 478 Newton iterations and 259
+--set contact.smoothing=S`, docs/dev-notes/fast_path.md): 43.9 s, 478 Newton iterations and 259
 factorizations at s = 0; 36.0 s at s = 0.02 mm; 26.8 s, 391 and 185 at s = 0.05 mm, whose
 lip aperture and protrusion then differ by 0.04 mm; over the whole 0.3 s gesture, though,
 s = 0.05 mm stalled at t = 0.156 s after every cutback. Off by default (s = 0).
@@ -104,7 +104,7 @@ the force and tangent formulas as they are. The reference face has six such chee
 on the upper teeth, two of them beyond a rim 0.42 mm behind its plane with 6.1 N each:
 without the offset a run with every muscle at rest moved the lips by 0.013 / 0.016 mm
 (aperture / protrusion) in 0.1 s, and the first 10 ms of benchmarks/fast_path.py's case a
-took 110 Newton iterations (13 with it; docs/fast_path.md, session 15). LipContact has
+took 110 Newton iterations (13 with it; docs/dev-notes/fast_path.md, session 15). LipContact has
 no offset: neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
@@ -121,7 +121,7 @@ vertex on its patch's edge at t = 0.18 s, where its nearest triangle switched be
 faded regions with their own normals, a jump in force with no equilibrium (four to ten
 cutbacks per run; with the exact faded derivatives the step at t = 0.184 s failed after
 every cutback), though the lip goes on beyond it; 24 keeps the slaves inside their
-patches (benchmarks/fast_path.py, docs/fast_path.md). Nodes on both surfaces (the joined
+patches (benchmarks/fast_path.py, docs/dev-notes/fast_path.md). Nodes on both surfaces (the joined
 mouth corners) are no slaves, and a slave inside the other lip at rest by more than
 rest_tolerance is dropped. Each slave takes its nearest candidate; penetrations deeper
 than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a node that came in
