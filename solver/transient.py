@@ -137,7 +137,6 @@ class Transient:
         self.v = np.zeros_like(model.u)
         self.h = min(max_substep, 1e-3)
         self.dissipated = 0.0          # mJ: sum over substeps of h v^T C v (never negative)
-        self._touch = None             # (u, touching nodes at u) after the last step
 
     def energy(self):
         """(kinetic, stored) energy in mJ at the current state (stored: all potentials
@@ -207,8 +206,7 @@ class Transient:
         u, v = model.u.ravel().copy(), self.v.ravel().copy()
         p_start = u[pres].copy()
         u0, v0, d0 = u.copy(), v.copy(), self.dissipated
-        known = self._touch is not None and np.array_equal(self._touch[0], model.u)
-        touch = self._touch[1] if known else None      # at u_n; None after a set state
+        touch = self._touching_at(sysm, u)                 # at u_n, from u_n alone
         stats = StepStats()
         t, run, prev = t0, 0, None
         model.linear_solver.invalidate()
@@ -261,8 +259,17 @@ class Transient:
         self.t = t_end
         model.u = u.reshape(-1, 3).copy()
         self.v = v.reshape(-1, 3).copy()
-        self._touch = None if touch is None else (model.u.copy(), touch)
         return stats
+
+    @classmethod
+    def _touching_at(cls, sysm, u):
+        """(n,) bool: the nodes the nonsmooth terms push on at u (ndof,), evaluated there
+        (not carried over from the last step: a step from a state set by set_state then
+        repeats exactly), or None without such terms."""
+        if not any(t.nonsmooth for t in sysm.terms):
+            return None
+        sysm.nonsmooth_residual(u)
+        return cls._touching(sysm)
 
     @staticmethod
     def _touching(sysm):

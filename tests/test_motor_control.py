@@ -113,3 +113,14 @@ def test_libcosim_runs_the_same_system_and_agrees_with_fmpy(tmp_path):
     assert max(abs(float(a[o]) - float(b[o])) for a, b in zip(ours, fmpy)
                for o in OUTPUTS) <= 0.01
     assert max(float(r["lip_aperture"]) for r in ours) > 3.0     # /a/ opened the lips
+
+
+@pytest.mark.slow
+def test_the_main_job_meets_every_target(tmp_path):
+    """The README's main job, whole: every identified target met, exit status 0."""
+    run = subprocess.run([sys.executable, str(ROOT / "examples" / "cosim_speech.py"),
+                          "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=1800, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    n = len(json.loads((CONTROL / "inverse_model.json").read_text())["targets"])
+    assert f"all {n} targets met" in run.stdout and "MISSED" not in run.stdout
