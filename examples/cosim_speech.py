@@ -108,13 +108,13 @@ def tracking(rows, targets):
 
 
 def table(results):
-    lines = ["target  window end   output           target  achieved   error   tol   result",
-             "------  ----------   --------------   ------  --------   -----   ---   ------"]
+    lines = [f"{'target':8s}{'window end':12s}{'output':16s}{'target':>8s}{'achieved':>10s}"
+             f"{'error':>8s}{'tol':>6s}  result"]
     for tg, t, checks in results:
         for k, (o, (target, got, err, tol, met)) in enumerate(checks.items()):
-            head = f"  /{tg['phoneme']}/   {t:7.3f} s " if k == 0 else " " * 21
-            lines.append(f"{head}  {o:15s} {target:7.2f}  {got:8.2f}  {err:+6.2f}  {tol:4.1f}"
-                         f"   {'met' if met else 'MISSED'}")
+            ph, end = (f"/{tg['phoneme']}/", f"{t:.3f} s") if k == 0 else ("", "")
+            lines.append(f"{ph:8s}{end:12s}{o:16s}{target:8.2f}{got:10.2f}{err:+8.2f}"
+                         f"{tol:6.1f}  {'met' if met else 'MISSED'}")
     return "\n".join(lines)
 
 

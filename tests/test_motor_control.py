@@ -57,6 +57,15 @@ def test_the_identified_map_and_targets_are_the_faces(lip_map):
     assert a["LLSAN"] == a["DLI"] == 1.0 and a["RIS"] == a["ZYG"] == 0.5 and a["OOP"] == 0.0
 
 
+def test_the_stored_responses_are_todays_face(tmp_path):
+    """The first three stored samples (rest, open, round), run again through today's
+    FaceFMU, end within 0.05 mm of the stored responses: the shipped map is not stale."""
+    run = subprocess.run([sys.executable, str(CONTROL / "identify.py"), "--check", "3"],
+                         capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "3 stored samples against today's FaceFMU" in run.stdout
+
+
 def _example(tmp_path, targets):
     path = tmp_path / "targets.json"
     path.write_text(json.dumps(targets))

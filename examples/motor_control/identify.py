@@ -1,7 +1,9 @@
 """Identify the face's static lip map from FaceFMU's own responses, and choose speech
 targets that the face can reach.
 
-    python examples/motor_control/identify.py [--samples 40] [--hold 0.3] [--jobs 2]
+    python examples/motor_control/identify.py [--samples 48] [--hold 0.3] [--jobs 2]
+    python examples/motor_control/identify.py --refit      # fit the stored samples again
+    python examples/motor_control/identify.py --check 3    # are they still the face's?
 
 Each sample holds one set of synergy weights w (lipmc_inverse.SYNERGIES) from rest for
 `hold` seconds through FaceFMU (fmpy, 10 ms communication steps, the FMU rolled back to
@@ -41,6 +43,7 @@ from lipmc_inverse import (FLOORED, NAMES, OUTPUTS, SOFTNESS, LipMap,  # noqa: E
                            activations, features)
 
 DATA = HERE / "inverse_model.json"
+CHECK = 0.05        # mm: the largest change of a stored response that --check accepts
 STEP = 0.01
 # The face the map is identified on: the FMU's parameters (the main job's face).
 FACE = {"scene": "default", "level": "coarse", "fidelity": ""}
@@ -163,16 +166,33 @@ def commit():
         return "unknown"
 
 
+def check(path, n):
+    """Exit status 1 if the first n stored samples' end outputs moved by more than CHECK."""
+    old = json.loads(path.read_text())
+    W = np.array(old["samples"]["weights"])[:n]
+    Y = np.array(old["samples"]["trajectories"])[:n, -1]
+    with tempfile.TemporaryDirectory() as tmp:
+        now = respond(build_face(tmp), W, old["provenance"]["hold"])[:, -1]
+    diff = np.abs(now - Y).max()
+    print(f"{n} stored samples against today's FaceFMU: largest change {diff:.4f} mm")
+    return 0 if diff <= CHECK else 1
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=40)
+    ap.add_argument("--samples", type=int, default=48)
     ap.add_argument("--hold", type=float, default=0.3, help="s held per sample")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=str(DATA))
     ap.add_argument("--refit", action="store_true", help="fit the samples stored in --out "
                     "again (new targets or model) without running the face")
+    ap.add_argument("--check", type=int, metavar="N", help="run the first N stored samples "
+                    "through today's FaceFMU and exit 1 if an output moved by more than "
+                    f"{CHECK} mm (the stored map is stale: identify again)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    if args.check:
+        return check(Path(args.out), args.check)
     if args.refit:
         old = json.loads(Path(args.out).read_text())
         W, T = np.array(old["samples"]["weights"]), np.array(old["samples"]["trajectories"])
@@ -208,7 +228,7 @@ def main(argv=None):
         y = lip_map(np.array(intent))
         targets.append({"phoneme": name, "intent": dict(zip(NAMES, intent)),
                         "duration": duration, "targeted": list(targeted),
-                        **{o: round(max(float(v), 0.0) if f else float(v), 1)
+                        **{o: round(max(float(v), 0.0) if f else float(v), 1) + 0.0
                            for o, v, f in zip(OUTPUTS, y, FLOORED)}})
         print(f"  /{name}/ intent {intent}: " + ", ".join(
             f"{o} {v:.2f}" for o, v in zip(OUTPUTS, y)))
@@ -222,14 +242,13 @@ def main(argv=None):
         "tau_face": tau,
         "samples": {"weights": W.tolist(), "trajectories": np.round(T, 5).tolist()},
         "targets": targets,
-        "provenance": {"command": command.strip(),
-                       "face": FACE, "hold": args.hold, "step": STEP,
-                       "commit": commit(),
-                       "date": datetime.now(timezone.utc).strftime("%Y-%m-%d")},
+        "provenance": old["provenance"] | {"fitted_at_commit": commit()} if args.refit else
+        {"command": command.strip(), "face": FACE, "hold": args.hold, "step": STEP,
+         "commit": commit(), "date": datetime.now(timezone.utc).strftime("%Y-%m-%d")},
     }
     Path(args.out).write_text(json.dumps(data, indent=1) + "\n")
     print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
