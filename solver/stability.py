@@ -101,7 +101,7 @@ class Case:
                        scene=halved(self.scene, min(h for h, _ in self.steps)))
 
 
-def scene_dict(name, driven, hold="step", lips=False, teeth=False, **solver):
+def scene_dict(name, driven, hold="step", lips=True, teeth=True, **solver):
     """TOML sections of a transient case on the coarse generic half face."""
     return {"scene": {"name": name, "analysis": "transient"},
             "anatomy": {"source": "generic", "level": "coarse", "half": True},
@@ -146,7 +146,7 @@ def cases(full=False):
     n = 200 if full else 4
     out.append(Case("oop_buc_contact", f"OOP + BUC at 1 with lip and teeth contact, "
                     f"{n * 0.005:g} s, 5 ms steps",
-                    scene_dict("oop_buc_contact", ("OOP", "BUC"), lips=True, teeth=True),
+                    scene_dict("oop_buc_contact", ("OOP", "BUC")),
                     [(0.005, {"OOP": 1.0, "BUC": 1.0})] * n,
                     halving_time=0.25 if full else None))
     # communication steps of 0.1 ms (activations ramp to 0.7 over 10 ms)
