@@ -10,7 +10,7 @@ Units everywhere: mm, N, MPa, s, tonne/mm^3 (see solver.units).
 """
 
 from . import _cache  # noqa: F401  (numba cache directory, before any kernel compiles)
-from .errors import (ConvergenceError, FaceFMUError, MeshError, MeshFileError,
+from .errors import (FaceFMUError, MeshError, MeshFileError,
                      ParameterError)
 from .face import FaceModel
 from .materials import MooneyRivlin
@@ -21,4 +21,4 @@ from .newton import NewtonOptions
 __version__ = "0.1.0"
 
 __all__ = ["FaceModel", "Mesh", "MooneyRivlin", "Model", "StaticResult", "NewtonOptions", "FaceFMUError",
-           "MeshError", "MeshFileError", "ParameterError", "ConvergenceError"]
+           "MeshError", "MeshFileError", "ParameterError"]

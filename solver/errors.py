@@ -20,11 +20,3 @@ class MeshFileError(MeshError):
 
 class ParameterError(FaceFMUError, ValueError):
     """An impossible parameter (negative modulus, NaN activation, unknown name)."""
-
-
-class ConvergenceError(FaceFMUError, RuntimeError):
-    """Newton failed after all cutbacks; the model state is left as it was before the call."""
-
-    def __init__(self, message, stats=None):
-        self.stats = stats
-        super().__init__(message)

@@ -204,10 +204,6 @@ class NewtonReport:
     krylov_steps: int = 0           # directions by GMRES on a reused factorization
 
 
-class NewtonFailure(Exception):
-    pass
-
-
 def _direction(system, r, data, dup, lin):
     """du with du_f = -K_ff^-1 (r_f + K_fp du_p) on the current factorization of lin
     (data: the tangent's CSR data, needed only where du_p != 0)."""

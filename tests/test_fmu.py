@@ -15,7 +15,7 @@ import zipfile
 
 import pytest
 
-from conftest import ROOT, SCRIPTS
+from conftest import SCRIPTS
 
 
 def _run(script, fmu, tmp_path, *args, timeout=600):

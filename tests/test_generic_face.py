@@ -1,7 +1,6 @@
 """The procedural generic face: counts per level, geometry, symmetry, muscles, sets,
 landmarks, slit, teeth, half face, and the same geometry at every level."""
 
-import time
 
 import numpy as np
 import pytest
@@ -103,17 +102,9 @@ def test_positive_det_j_and_quality(faces, level):
     assert scaled[~mesh.is_wedge].min() > 0.5
 
 
-def test_generation_is_fast():
-    t = time.perf_counter()
-    generic_face("paper")
-    assert time.perf_counter() - t < 2.0
-
-
 @pytest.mark.slow
 def test_fine_level(paper):
-    t = time.perf_counter()
     fine = generic_face("fine")
-    assert time.perf_counter() - t < 10.0
     assert fine.mesh.n_bricks >= 4 * paper.mesh.n_bricks
     assert fine.mesh.det_j.min() > 0.0
     assert np.allclose(fine.mesh.bounding_box, paper.mesh.bounding_box, rtol=0.01)
