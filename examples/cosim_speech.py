@@ -14,6 +14,7 @@ factor, and writes a CSV and a PNG of targets, outputs and activations.
 import argparse
 import csv
 import json
+import os
 import subprocess
 import sys
 import time
@@ -40,6 +41,16 @@ def build_fmus(dest):
                     str(CONTROL / "inverse_model.json")],
                    check=True, stdout=subprocess.DEVNULL, cwd=CONTROL)
     return dest / "FaceFMU.fmu", dest / "LipMotorControl.fmu"
+
+
+def exit_now(status):
+    """End the process with `status` once its work is written, without the interpreter's
+    teardown: a process that hosted pythonfmu FMUs through fmpy can abort in the C-level
+    teardown after Python has finalized (glibc heap corruption, exit code 134; see
+    docs/dev-notes/exit-crash.md), which would report a finished run as a crash."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
 
 
 def instantiate(path, name, start_values=None):
@@ -91,6 +102,12 @@ def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, control_para
     return rows
 
 
+def load_targets(path=None):
+    """The target list of a JSON file (a list, or inverse_model.json's "targets")."""
+    data = json.loads(Path(path or CONTROL / "inverse_model.json").read_text())
+    return data["targets"] if isinstance(data, dict) else data
+
+
 def tracking(rows, targets):
     """Per target, at the end of its window: [(target dict, {output: (target, achieved,
     error, tolerance, met)})] for the targeted outputs."""
@@ -116,6 +133,21 @@ def table(results):
             lines.append(f"{ph:8s}{end:12s}{o:16s}{target:8.2f}{got:10.2f}{err:+8.2f}"
                          f"{tol:6.1f}  {'met' if met else 'MISSED'}")
     return "\n".join(lines)
+
+
+def report(rows, targets, wall, csv_path):
+    """Print the tracking table and the wall time, write the rows to csv_path; returns
+    the number of targets missed."""
+    results = tracking(rows, targets)
+    print(table(results))
+    stop = sum(tg["duration"] for tg in targets)
+    print(f"co-simulation: {wall:.1f} s of wall time for {stop:.2f} s of speech "
+          f"(real-time factor {wall / stop:.1f})")
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return sum(not all(c[4] for c in checks.values()) for _, _, checks in results)
 
 
 def plot(rows, targets, path):
@@ -160,9 +192,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    targets = json.loads((Path(args.targets) if args.targets else
-                          CONTROL / "inverse_model.json").read_text())
-    targets = targets["targets"] if isinstance(targets, dict) else targets
+    targets = load_targets(args.targets)
     stop = sum(tg["duration"] for tg in targets)
     t0 = time.perf_counter()
     face_fmu, control_fmu = build_fmus(out)
@@ -173,24 +203,15 @@ def main(argv=None):
           f"scene {args.scene!r}, level {args.level!r}, fidelity {args.fidelity or 'the scene'!r}")
     t0 = time.perf_counter()
     rows = cosimulate(face_fmu, control_fmu, stop, args.step, face, control)
-    wall = time.perf_counter() - t0
-    results = tracking(rows, targets)
-    print(table(results))
-    met = sum(all(c[4] for c in checks.values()) for _, _, checks in results)
-    print(f"co-simulation: {wall:.1f} s of wall time for {stop:.2f} s of speech "
-          f"(real-time factor {wall / stop:.1f})")
-    with open(out / "cosim.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    missed = report(rows, targets, time.perf_counter() - t0, out / "cosim.csv")
     plot(rows, targets, out / "cosim.png")
     print(f"wrote {out / 'cosim.csv'} and {out / 'cosim.png'}")
-    if met < len(results):
-        print(f"FAILED: {len(results) - met} of {len(results)} targets missed")
+    if missed:
+        print(f"FAILED: {missed} of {len(targets)} targets missed")
         return 1
-    print(f"all {len(results)} targets met")
+    print(f"all {len(targets)} targets met")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_now(main())

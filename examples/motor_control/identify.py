@@ -251,4 +251,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.path.insert(0, str(HERE.parent))
+    from cosim_speech import exit_now
+    exit_now(main() or 0)
