@@ -143,7 +143,7 @@ def probe(n=26, reps=3):
     """Seconds of a fixed workload (the best of reps): a 3D Laplacian of n^3 unknowns
     factorized by the project's PARDISO in single precision (MKL_NUM_THREADS as set) and
     solved ten times, and a dense 600 x 600 product: a gauge of the machine's speed at the
-    time of a run, whose wall time drifts with it (docs/dev-notes/fast_path.md, session 17)."""
+    time of a run, whose wall time drifts with it (docs/dev-notes/fast_path.md)."""
     import numpy as np
     import scipy.sparse as sp
     from solver.linsolve import available, make_solver

@@ -14,7 +14,7 @@ for random du of sizes 1e-3, 1e-4 and 1e-5 mm per DOF. An exact tangent gives er
 fall as |du|^2 (rounding below about 1e-9); a missing term in the tangent gives an error
 that does not fall with |du|; a kink (a contact status changing within du) one that grows
 with it. Newton converges linearly at about that error where a term dominates the
-residual (docs/dev-notes/fast_path.md, session 15: the lip contact's faded penalty).
+residual (docs/dev-notes/fast_path.md: the lip contact's faded penalty).
 """
 
 import argparse

@@ -153,7 +153,7 @@ class FaceFMU(Fmi2Slave):
             # MKL PARDISO loaded inside an FMU raises the rate at which fmpy's process
             # aborts at its exit (heap corruption): with twelve instances per process 3 of
             # 24 processes against none of 12 with SuperLU, even with MKL's buffers handed
-            # back at terminate (session 17, docs/dev-notes/fast_path.md); a scene can still ask for
+            # back at terminate (docs/dev-notes/fast_path.md); a scene can still ask for
             # "pardiso-single", about four times faster
             out["linear_solver"] = "superlu"
         return out

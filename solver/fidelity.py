@@ -50,7 +50,7 @@ reference face's time on benchmarks/fast_path.py; at 0.3 case a took 162 Newton 
 against 233 and 17.5 s against 26.5 s one call after the other, its deepest penetration
 0.030 mm (under the 0.05 mm of solver/stability.py), the lip outputs within 3.4e-3 mm; the
 sweep's preset runs gave the same errors against fine to 1e-3 mm (balanced 7.6 s of CPU,
-fast 3.6 s; docs/dev-notes/fast_path.md, docs/accuracy.md, session 18). At 0.2 the penetration was
+fast 3.6 s; docs/dev-notes/fast_path.md, docs/accuracy.md). At 0.2 the penetration was
 0.042 mm, at 0.1 0.076 mm.
 The sweep's tolerance runs, each preset at tighter substep tolerances and otherwise as it
 is, in one call (`python benchmarks/accuracy_vs_time.py --cost cpu --only

@@ -4,7 +4,7 @@ r"""Newton directions with the current contact tangent on a reused factorization
 A reused factorization A holds the smooth terms' tangent of an earlier iterate and the
 contact terms' tangent C_A of the iterate where it was made. Modified Newton's direction
 A^-1 (-r) lacks the contact's change since, C(u_k) - C_A, which on the lip gesture was
-what slowed the iteration (docs/dev-notes/fast_path.md, session 12: a pressed slave is a stiff
+what slowed the iteration (docs/dev-notes/fast_path.md: a pressed slave is a stiff
 spring whose direction turns with every step). Here the direction solves
 
     (A + D) du = c,    D = C(u_k) - C_A + U diag(d) U^T,    c = -r - U (d * p)

@@ -52,7 +52,7 @@ os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
 # that run right after: a scratch loop of a solve then a kernel call gave the kernels
 # 5-10 % more speed; the whole gesture of benchmarks/fast_path.py within the machine's drift
-# (session 16; docs/dev-notes/fast_path.md).
+# (docs/dev-notes/fast_path.md).
 os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 

@@ -97,7 +97,7 @@ u_k (System.nonsmooth_tangent) and adds the rest of the key's last full assembly
 matrix is K_smooth(u_j) + K_contact(u_k). Within a
 substep the tissue's tangent changes little (without contact a substep converges on its
 first factorization at a rate of 0.02-0.04 per iteration) while the contact's is what
-slowed the iteration (docs/dev-notes/fast_path.md, session 12). Only within ``partial_reach`` (mm,
+slowed the iteration (docs/dev-notes/fast_path.md). Only within ``partial_reach`` (mm,
 the largest nodal displacement) of the full assembly's state: farther (a large jump, the
 bar of tests/test_fast_path.py) the tissue's tangent may be what went stale, and
 everything is assembled; a new key (the next substep) assembles everything too.
@@ -117,7 +117,7 @@ terms' part at u_k (and the status that the step predicts) by GMRES precondition
 the factorization, its earlier solves recycled (solver.krylov); it is searched along like
 a new factorization's direction, and where GMRES does not reach its tolerance within its
 budget of solves the tangent is refactorized. It trades factorizations for solves:
-benchmarks/fast_path.py (docs/dev-notes/fast_path.md, session 13) case a 400 -> 144
+benchmarks/fast_path.py (docs/dev-notes/fast_path.md) case a 400 -> 144
 factorizations and 1-16 % less time, case b 182 -> 111 and a fifth less time with SuperLU,
 between 6 % more and 13 % less with single-precision PARDISO (whose factorization costs
 only six or seven solves), depending on the hour.

@@ -104,7 +104,7 @@ the force and tangent formulas as they are. The reference face has six such chee
 on the upper teeth, two of them beyond a rim 0.42 mm behind its plane with 6.1 N each:
 without the offset a run with every muscle at rest moved the lips by 0.013 / 0.016 mm
 (aperture / protrusion) in 0.1 s, and the first 10 ms of benchmarks/fast_path.py's case a
-took 110 Newton iterations (13 with it; docs/dev-notes/fast_path.md, session 15). LipContact has
+took 110 Newton iterations (13 with it; docs/dev-notes/fast_path.md). LipContact has
 no offset: neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
