@@ -75,7 +75,8 @@ def plot_run(rows, path, title):
             ax[-1].plot(t, [r[m] for r in rows], label=m)
     ax[-1].set_ylabel("activation")
     ax[-1].set_xlabel("time (s)")
-    ax[-1].legend(fontsize=8, ncol=5)
+    if ax[-1].get_lines():
+        ax[-1].legend(fontsize=8, ncol=5)
     ax[0].set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
