@@ -171,7 +171,8 @@ def cases(full=False):
         # many 1 ms steps under a held activation: settles on the static equilibrium
         out.append(Case("held_1ms_steps", "10000 consecutive 1 ms steps, OOP + BUC held "
                         "at 0.5: settles on the static equilibrium, never drifts away",
-                        scene_dict("held_1ms_steps", ("OOP", "BUC")),
+                        # contact off: the static reference solve stalls with lip contact
+                        scene_dict("held_1ms_steps", ("OOP", "BUC"), lips=False, teeth=False),
                         [(0.001, {"OOP": 0.5, "BUC": 0.5})] * 10_000, halving=False,
                         memory=True, equilibrium=True))
         # random activation sequences of all ten muscles

@@ -131,7 +131,7 @@ def test_held_activation_settles_on_the_static_equilibrium():
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     from solver.stability import lip_outputs, scene_dict
-    sc = scene_dict("held", ("OOP", "BUC"))
+    sc = scene_dict("held", ("OOP", "BUC"), lips=False, teeth=False)
     sim = Simulation(parse_scene(sc))
     sc["scene"]["analysis"] = "static"
     static = Simulation(parse_scene(sc), loaded_anatomy=sim.anatomy)
