@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu.enums import Fmi2Status
 
 from lipmc_inverse import MUSCLES, NAMES, OUTPUTS, LipMap, activations
 
@@ -57,7 +58,7 @@ def segment_at(targets, t):
 class LipMotorControl(Fmi2Slave):
     author = "FaceFMU developers"
     description = ("Speech lip targets to ten face muscle activations: inverse-model "
-                   "feedforward, integral feedback with anti-windup, activation dynamics")
+                   "feedforward, internal-model feedback, activation dynamics")
     default_experiment = None
 
     def __init__(self, **kwargs):
@@ -120,7 +121,12 @@ class LipMotorControl(Fmi2Slave):
         k = segment_at(self._targets, current_time)
         if k != self._k:
             self._enter(k)
-        y = np.array([getattr(self, name) for name in OUTPUTS])
+        y = np.array([getattr(self, name) for name in OUTPUTS], dtype=float)
+        if not (np.all(np.isfinite(y)) and h > 0):
+            bad = [f"input {n} = {v}" for n, v in zip(OUTPUTS, y) if not np.isfinite(v)]
+            self.log(f"step refused: {', '.join(bad) or f'step size {h!r}'}; the state stays "
+                     f"at t = {current_time} s", Fmi2Status.discard)
+            return False
         self._d += (y - self._p - self._d) * (1.0 - math.exp(-h / self.tau_fb))
         self._w = self._map.inverse(self._r - self._q * self._d, self._q, w0=self._w,
                                     w_ref=self._ref)
