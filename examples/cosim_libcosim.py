@@ -24,7 +24,7 @@ from xml.sax.saxutils import escape
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from cosim_speech import (CONTROL, MUSCLES, OUTPUTS, TARGETS, build_fmus,  # noqa: E402
-                          exit_now, load_targets, report)
+                          load_targets, report)
 
 MATCH = 0.01        # mm
 
@@ -100,4 +100,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    exit_now(main())
+    sys.exit(main())

@@ -14,7 +14,6 @@ factor, and writes a CSV and a PNG of targets, outputs and activations.
 import argparse
 import csv
 import json
-import os
 import subprocess
 import sys
 import time
@@ -40,17 +39,11 @@ def build_fmus(dest):
                     "--no-external-tool", str(CONTROL / "lipmc_inverse.py"),
                     str(CONTROL / "inverse_model.json")],
                    check=True, stdout=subprocess.DEVNULL, cwd=CONTROL)
-    return dest / "FaceFMU.fmu", dest / "LipMotorControl.fmu"
-
-
-def exit_now(status):
-    """End the process with `status` once its work is written, without the interpreter's
-    teardown: a process that hosted pythonfmu FMUs through fmpy can abort in the C-level
-    teardown after Python has finalized (glibc heap corruption, exit code 134; see
-    docs/dev-notes/exit-crash.md), which would report a finished run as a crash."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)
+    control = dest / "LipMotorControl.fmu"
+    # pythonfmu's wrapper, corrected as FaceFMU's is (docs/dev-notes/exit-crash.md)
+    subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--fix-wrapper", str(control)],
+                   check=True, stdout=subprocess.DEVNULL)
+    return dest / "FaceFMU.fmu", control
 
 
 def instantiate(path, name, start_values=None):
@@ -214,4 +207,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    exit_now(main())
+    sys.exit(main())

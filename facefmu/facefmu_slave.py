@@ -12,13 +12,16 @@ What a master sees:
   level) is logged as an error at exitInitializationMode, which then fails with fmi2Fatal
   (pythonfmu turns exceptions into fmi2Fatal); setting a parameter after initialization is
   logged as a warning and ignored.
-* fidelity: "" (default) runs the scene with the parameters level, half_face, tolerance and
-  max_substep; a preset of solver.fidelity (fast, balanced, accurate) sets those itself
-  (and the Newton tolerance and element formulation): the four parameters are then not
-  used, with a warning for each one set away from its default. "realtime" runs the
-  scene's reduced-order model (solver.rom): the one packed in the FMU's resources/rom
-  (python build_fmu.py --rom FILE or --with-realtime), else the user's cache; without a
-  model for the scene, initialization logs the training command and ends in fmi2Fatal.
+* fidelity: "balanced" (default) and the other presets of solver.fidelity (fast,
+  accurate) set the mesh level, half face, substep and Newton tolerances and the element
+  formulation themselves: the parameters level, half_face, tolerance and max_substep are
+  then not used, with a warning for each one set away from its default. "" runs the scene
+  as its file states it, with those four parameters. "realtime" runs the scene's
+  reduced-order model (solver.rom): the one packed in the FMU's resources/rom (python
+  build_fmu.py --rom FILE or --with-realtime), else the user's cache; without a model for
+  the scene, initialization logs the training command and ends in fmi2Fatal.
+* The linear solver is the scene's (`auto`: MKL PARDISO in single precision with
+  refinement where pypardiso is installed, else SuperLU), as in process.
 Outputs change only in doStep (no direct feedthrough).
 """
 
@@ -62,7 +65,7 @@ class FaceFMU(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.anatomy, self.scene, self.fidelity = "generic", "default", ""
+        self.anatomy, self.scene, self.fidelity = "generic", "default", "balanced"
         for name, value in PRESET_PARAMETERS.items():
             setattr(self, name, value)
         for m in MUSCLE_NAMES:
@@ -98,13 +101,20 @@ class FaceFMU(Fmi2Slave):
         self.register_variable(Real("tolerance", description="local error tolerance of a "
                                     "substep", **fixed))
         self.register_variable(Real("max_substep", description="largest substep", **fixed))
-        self.register_variable(String("fidelity", description="'' (the scene with level, "
-                                      "half_face, tolerance, max_substep) or a preset: "
+        self.register_variable(String("fidelity", description="a preset: "
                                       + ", ".join(FIDELITIES + tuple(REDUCED))
-                                      + " (reduced-order; trained per scene)", **fixed))
+                                      + " (reduced-order; trained per scene), or '' (the "
+                                      "scene with level, half_face, tolerance, "
+                                      "max_substep); where it is not set, a scene file "
+                                      "that names a fidelity keeps its own",
+                                      setter=self._set_fidelity, **fixed))
         self.sim = None
         self.time = 0.0
         self._used = None
+        self._fidelity_set = False
+
+    def _set_fidelity(self, value):
+        self.fidelity, self._fidelity_set = value, True
 
     def to_xml(self, model_options=dict()):
         return extend_model_description(super().to_xml(model_options))
@@ -115,10 +125,10 @@ class FaceFMU(Fmi2Slave):
 
     def exit_initialization_mode(self):
         from solver.simulation import Simulation
-        self._used = {p: getattr(self, p) for p in PARAMETERS}
         try:
-            self.sim = Simulation(self.scene, fidelity=self.fidelity or None,
-                                  **self._overrides())
+            overrides = self._overrides()
+            self._used = {p: getattr(self, p) for p in PARAMETERS}
+            self.sim = Simulation(self.scene, fidelity=self.fidelity or None, **overrides)
         except Exception as exc:
             self.log(f"cannot build the model: {exc}", Fmi2Status.error)
             raise
@@ -129,12 +139,15 @@ class FaceFMU(Fmi2Slave):
 
     def terminate(self):
         if self.sim is not None:
-            # the linear solver's native memory, and MKL's pooled buffers where a scene
-            # chose PARDISO (solver.linsolve.free_mkl_buffers: without them fmpy's process
-            # aborted at its exit in 6 of 8 runs of three instances)
+            # the linear solver's native memory and MKL's pooled buffers, now rather
+            # than at the importer's exit
             self.sim.release()
 
     def _overrides(self):
+        from solver.simulation import resolve_scene
+        scene = resolve_scene(self.scene)
+        if scene.fidelity and not self._fidelity_set:
+            self.fidelity = scene.fidelity          # the scene file's own choice
         out = {"anatomy": str(self.anatomy)}
         if not self.fidelity:
             out.update(level=str(self.level), half=bool(self.half_face),
@@ -145,17 +158,8 @@ class FaceFMU(Fmi2Slave):
                 if getattr(self, name) != default:
                     self.log(f"parameter {name} = {getattr(self, name)!r} not used: fidelity "
                              f"{self.fidelity!r} sets it", Fmi2Status.warning)
-        from solver.simulation import resolve_scene
-        scene = resolve_scene(self.scene)
         if self.fidelity in REDUCED or scene.fidelity in REDUCED:
             out["rom_dirs"] = self._rom_dirs()
-        if scene.linear_solver == "auto":
-            # MKL PARDISO loaded inside an FMU raises the rate at which fmpy's process
-            # aborts at its exit (heap corruption): with twelve instances per process 3 of
-            # 24 processes against none of 12 with SuperLU, even with MKL's buffers handed
-            # back at terminate (docs/dev-notes/fast_path.md); a scene can still ask for
-            # "pardiso-single", about four times faster
-            out["linear_solver"] = "superlu"
         return out
 
     def _rom_dirs(self):

@@ -21,7 +21,7 @@ from solver import stability as S
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.simulation import Simulation
 from solver.transient import StepStats
-from conftest import SCRIPTS, exit_crash_is_known
+from conftest import SCRIPTS
 
 QUICK = {c.name: c for c in S.cases(full=False)}
 _runs = {}
@@ -82,7 +82,7 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
         assert m["fmu_vs_solver"] <= S.FMU_MATCH_TOLERANCE
     assert results["refusal"]["statuses"] == [0, 2, 0]
     assert "did not converge" in proc.stdout                 # the refusal was logged
-    exit_crash_is_known(proc)
+    assert proc.returncode == 0, proc.stderr[-3000:]         # and the process exits cleanly
 
 
 # ------------------------------------------------------------- the checks can fail

@@ -251,6 +251,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(HERE.parent))
-    from cosim_speech import exit_now
-    exit_now(main() or 0)
+    sys.exit(main() or 0)

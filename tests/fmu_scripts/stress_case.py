@@ -35,7 +35,7 @@ def run(md, unzip, vr, case):
     fmu.instantiate(loggingOn=True)
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
-    fmu.setString([vr["scene"]], [case["scene"]])
+    fmu.setString([vr["scene"], vr["fidelity"]], [case["scene"], case.get("fidelity", "")])
     fmu.setReal([vr["tolerance"], vr["max_substep"]], [case["tolerance"], case["max_substep"]])
     fmu.exitInitializationMode()
     refs = [vr[m] for m in MUSCLES]
