@@ -9,11 +9,14 @@ steps the scene's activation schedule at the communication step: each step the
 activations at its end are set and the model steps (what a master does with the FMU, and
 what Simulation.step does in process). Only the stepping is timed. Prints per anatomy the
 wall time of each master, its ratio to in-process, and the largest difference of the lip
-aperture and protrusion from the in-process run (mm). The reference face is read from
-../shared/data/reference-face (or $FACEFMU_REFERENCE_FACE) and skipped where absent.
+aperture and protrusion from the in-process run (mm), and writes the table with its
+command, commit and date to --out (docs/fmu_vs_inprocess.md; "" writes none). The
+reference face is read from ../shared/data/reference-face (or $FACEFMU_REFERENCE_FACE)
+and skipped where absent.
 """
 
 import argparse
+import datetime
 import json
 import os
 import subprocess
@@ -131,36 +134,51 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=0.005)
     ap.add_argument("--duration", type=float, default=0.3)
     ap.add_argument("--masters", default="inprocess,fmpy,libcosim")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "fmu_vs_inprocess.md"))
     args = ap.parse_args(argv)
+    table = []
+
+    def say(line):
+        print(line, flush=True)
+        table.append(line)
+
     masters = args.masters.split(",")
     sched = schedule(args.scene, args.duration)
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", tmp],
                        check=True, stdout=subprocess.DEVNULL)
         fmu = Path(tmp) / "FaceFMU.fmu"
-        print(f"scene {args.scene}, fidelity {args.fidelity!r}, {args.duration} s at "
-              f"{args.step * 1e3:g} ms steps; wall time of the stepping")
-        print(f"{'anatomy':10s}{'master':11s}{'wall (s)':>10s}{'ratio':>8s}"
+        say(f"scene {args.scene}, fidelity {args.fidelity!r}, {args.duration} s at "
+            f"{args.step * 1e3:g} ms steps; wall time of the stepping")
+        say(f"{'anatomy':10s}{'master':11s}{'wall (s)':>10s}{'ratio':>8s}"
               f"{'max diff (mm)':>15s}{'exit':>6s}")
         for anatomy in args.anatomy.split(","):
             spec = "generic" if anatomy == "generic" else str(REFERENCE)
             if anatomy == "reference" and not REFERENCE.is_dir():
-                print(f"{anatomy:10s}skipped: no {REFERENCE}")
+                say(f"{anatomy:10s}skipped: no {REFERENCE}")
                 continue
             base = None
             for mode in masters:
                 res = run(mode, args.scene, spec, args.fidelity, args.step, args.duration,
                           fmu, sched)
                 if "error" in res:
-                    print(f"{anatomy:10s}{mode:11s} failed (exit {res['exit']}): "
-                          f"{res['error']}")
+                    say(f"{anatomy:10s}{mode:11s} failed (exit {res['exit']}): "
+                        f"{res['error']}")
                     continue
                 base = base or res
                 diff = max(abs(a - b) for r, q in zip(res["rows"], base["rows"])
                            for a, b in zip(r, q))
-                print(f"{anatomy:10s}{mode:11s}{res['wall_s']:10.2f}"
-                      f"{res['wall_s'] / base['wall_s']:8.2f}{diff:15.2e}{res['exit']:6d}",
-                      flush=True)
+                say(f"{anatomy:10s}{mode:11s}{res['wall_s']:10.2f}"
+                    f"{res['wall_s'] / base['wall_s']:8.2f}{diff:15.2e}{res['exit']:6d}")
+    if args.out:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip()
+        command = "python benchmarks/fmu_vs_inprocess.py " + " ".join(argv or sys.argv[1:])
+        Path(args.out).write_text(
+            "<!-- written by benchmarks/fmu_vs_inprocess.py; do not edit -->\n"
+            f"`{command.strip()}` at commit {commit}, "
+            f"{datetime.date.today().isoformat()}, {os.cpu_count()} cores:\n\n```\n"
+            + "\n".join(table) + "\n```\n")
 
 
 if __name__ == "__main__":
