@@ -1,12 +1,14 @@
 """The stress run: every hard case of solver/stability.py, its invariants, the step-halving
 convergence check and (--fmu) the same cases through the built FMU with fmpy; a table.
 
-    python benchmarks/stress.py [--quick] [--fmu] [--no-halving] [--cases NAME ...]
+    python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
                                 [--out out/stress] [--doc docs/stability.md]
 
---quick runs the CI versions of the cases; the default is the full ones. Writes
-OUT/stress.csv and OUT/stress.md (and the markdown to --doc when given); exits with 1
-when a case fails.
+With no options it runs every full case in process and through the FMU and rewrites
+docs/stability.md whole (commit, date, wall time, the table, the failures). --quick runs
+the CI versions of the cases; --cases a subset; --no-fmu skips the FMU rows; these write
+the report to OUT only, unless --doc names a file. Writes OUT/stress.csv and
+OUT/stress.md; exits with 1 when a case fails.
 
 Columns: pass; steps (accepted communication steps) and refused ones; substeps, Newton
 iterations, cutbacks (total) and worst cutbacks (in one step); min det F over all Gauss
@@ -18,7 +20,9 @@ outputs from the run in this process.
 """
 
 import argparse
+import datetime
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -110,9 +114,8 @@ def run_fmu(selected, runs, out, notes, fmu=None):
             raise SystemExit(f"the FMU run crashed (exit {proc.returncode}):\n"
                              f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
         if proc.returncode != 0:
-            notes.append(f"the fmpy process crashed at exit (code {proc.returncode}) after "
-                         "finishing every case: the known pythonfmu heap corruption at "
-                         "interpreter exit (NTNU-IHB/PythonFMU#228)")
+            raise SystemExit(f"the fmpy process finished every case, then exited with "
+                             f"{proc.returncode}:\n{proc.stderr[-3000:]}")
         results = json.loads((tmp / "out.json").read_text())
         print(f"   {time.perf_counter() - t0:.1f} s", flush=True)
     for case in selected:
@@ -136,15 +139,26 @@ def run_fmu(selected, runs, out, notes, fmu=None):
     return rows, problems
 
 
+def _commit():
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True,
+                              text=True).stdout.strip()
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    return head + (" with uncommitted changes" if git("status", "--porcelain",
+                                                     "--untracked-files=no") else "")
+
+
 def markdown(rows, command, notes, problems, wall):
     def cell(v):
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3g}"
         return str(v)
     lines = ["# Stability: the hard cases", "",
-             f"Made by `{command}` on {platform.machine()} ({platform.python_version()}), "
-             f"{wall / 60:.1f} min in all, on the 2-core development machine shared with "
-             "other jobs (times are upper bounds). Cases and checks: `solver/stability.py`; "
+             f"Made by `{command}` at commit {_commit()} on "
+             f"{datetime.date.today().isoformat()}, {platform.machine()} "
+             f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
+             f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
+             "had other work). Cases and checks: `solver/stability.py`; "
              "the quick versions run in CI (`tests/test_stability.py`).", "",
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "
              "the smallest over all steps); lip outputs within bounds (aperture >= 0); "
@@ -160,8 +174,8 @@ def markdown(rows, command, notes, problems, wall):
              f"substep is halved (limit {S.HALVING_TOLERANCE} mm plus "
              f"{S.HALVING_RELATIVE:.0%} of the case's largest lip-output excursion). fmu rows: the same case "
              "through the built FMU with fmpy; fmu_vs_solver_mm is the largest difference "
-             f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; the FMU solves "
-             f"with SuperLU). Memory growth limit {S.MEMORY_LIMIT_MB} MB.", "",
+             f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; both use the "
+             f"scene's linear solver). Memory growth limit {S.MEMORY_LIMIT_MB} MB.", "",
              " | ".join(KEYS), " | ".join("---" for _ in KEYS)]
     lines += [" | ".join(cell(r.get(k, "-")) for k in KEYS) for r in rows]
     if notes:
@@ -178,13 +192,16 @@ def markdown(rows, command, notes, problems, wall):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the CI versions of the cases")
-    ap.add_argument("--fmu", action="store_true", help="also run the cases through the FMU")
+    ap.add_argument("--no-fmu", action="store_true", help="skip the runs through the FMU")
     ap.add_argument("--fmu-path", help="a built FMU (default: build one into OUT/fmu)")
     ap.add_argument("--no-halving", action="store_true", help="skip the convergence check")
     ap.add_argument("--cases", nargs="+", help="only these cases")
     ap.add_argument("--out", default=str(ROOT / "out" / "stress"))
-    ap.add_argument("--doc", help="also write the markdown report there")
+    ap.add_argument("--doc", help="also write the markdown report there (default: "
+                    "docs/stability.md for the whole run)")
     args = ap.parse_args(argv)
+    if args.doc is None and not (args.quick or args.cases or args.no_fmu or args.no_halving):
+        args.doc = str(ROOT / "docs" / "stability.md")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     selected = [c for c in S.cases(full=not args.quick)
@@ -195,7 +212,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     rows, runs, notes = run_solver(selected, not args.no_halving)
     problems = {c.name: runs[c.name].problems for c in selected}
-    if args.fmu:
+    if not args.no_fmu:
         fmu_rows, fmu_problems = run_fmu(selected, runs, out, notes, args.fmu_path)
         rows += fmu_rows
         problems.update({f"fmu:{k}": v for k, v in fmu_problems.items()})
