@@ -26,7 +26,9 @@ A refused step (no convergence after every cutback) must leave the state exactly
 was (t, u, v, activations, dissipated energy); a case expects no refusal unless it names
 the step. ``run_case`` returns the outputs after each step and the worst values seen.
 A long run also checks that memory does not grow and, under a held activation, that the
-state settles on the static equilibrium and never drifts away from it.
+state settles on the static equilibrium and never drifts away from it. A rollback case
+restores the state after its steps and repeats the last step many times: every repeat
+must give the same outputs, bit for bit.
 
 Through the FMU (``fmu_spec``, ``check_fmu_run``, tests/fmu_scripts/stress_case.py): the
 same steps with fmpy; outputs finite and in bounds, the same refusals (fmi2Discard, outputs
@@ -73,7 +75,9 @@ class Case:
     the convergence check, over the first halving_time seconds (None: all the steps);
     rest: nothing may move; memory: measure memory growth; equilibrium: track the largest
     lip-output distance to the static equilibrium at the last activations, at ten
-    checkpoints: it must never grow (no drift) and end within EQUILIBRIUM_TOLERANCE."""
+    checkpoints: it must never grow (no drift) and end within EQUILIBRIUM_TOLERANCE;
+    rollback: after the steps, restore the state this many times and repeat the last step:
+    every repeat must give the same outputs, bit for bit (an FMU master's rollback)."""
 
     name: str
     description: str
@@ -85,6 +89,7 @@ class Case:
     memory: bool = False
     equilibrium: bool = False
     halving_time: float = None
+    rollback: int = 0
 
     @property
     def duration(self):
@@ -120,6 +125,15 @@ def random_steps(seed, segments, muscles=MUSCLE_NAMES, sizes=(0.002, 0.01, 0.03)
     return [(float(rng.choice(sizes)), {m: float(a) for m, a in
                                         zip(muscles, rng.uniform(0.0, 1.0, len(muscles)))})
             for _ in range(segments)]
+
+
+def switching_steps(seed, n, muscles=MUSCLE_NAMES, shortest=0.001, longest=0.02):
+    """n steps of a size drawn uniformly in [shortest, longest] s (rounded to 0.1 ms), each
+    with new activations in [0, 1] for all muscles, from numpy's generator seeded seed."""
+    rng = np.random.default_rng(seed)
+    return [(round(float(rng.uniform(shortest, longest)), 4),
+             {m: float(a) for m, a in zip(muscles, rng.uniform(0.0, 1.0, len(muscles)))})
+            for _ in range(n)]
 
 
 def cases(full=False):
@@ -181,6 +195,38 @@ def cases(full=False):
                             f"10 steps of 2, 10 or 30 ms (seed {seed})",
                             scene_dict(f"random_{seed}", MUSCLE_NAMES, "ramp"),
                             random_steps(seed, 10)))
+    # lips pressed shut (OOP + OOM at 1), then released within 10 ms, then at rest
+    press = {"OOP": 1.0, "OOM": 1.0}
+    n, m = (20, 20) if full else (4, 2)
+    out.append(Case("pressed_released", f"lips pressed shut (OOP + OOM at 1) for "
+                    f"{n * 5} ms, released to 0 over 10 ms, {m * 5} ms at rest",
+                    scene_dict("pressed_released", ("OOP", "OOM"), "ramp"),
+                    [(0.005, press)] * n + [(0.01, {})] + [(0.005, {})] * m))
+    # lips pressed while pulled apart
+    n = 40 if full else 4
+    out.append(Case("pressed_pulled_apart", f"OOM + OOP at 1 against DLI + LLSAN at 1, "
+                    f"{n * 5} ms in 5 ms steps",
+                    scene_dict("pressed_pulled_apart", ("OOP", "OOM", "DLI", "LLSAN")),
+                    [(0.005, {"OOP": 1.0, "OOM": 1.0, "DLI": 1.0, "LLSAN": 1.0})] * n))
+    # all ten muscles switched at random every communication step of 1 to 20 ms
+    for seed in range(3):
+        n = 50 if full else 5
+        out.append(Case(f"switching_{seed}", f"all ten muscles switched to random levels "
+                        f"every step, {n} steps of 1 to 20 ms (seed {seed})",
+                        scene_dict(f"switching_{seed}", MUSCLE_NAMES),
+                        switching_steps(seed, n)))
+    if full:
+        # one communication step of 1 s
+        out.append(Case("one_second_step", "a single 1 s communication step with the lips "
+                        "pressed (OOP + OOM ramped to 1)",
+                        scene_dict("one_second_step", ("OOP", "OOM"), "ramp"),
+                        [(1.0, press)]))
+    # rolled back and re-stepped at a contact-heavy point (lips pressed)
+    n, r = (10, 1000) if full else (2, 20)
+    out.append(Case("rollback_pressed", f"lips pressed (OOP + OOM at 1, {n * 5} ms), then "
+                    f"the state restored and the last 5 ms step repeated {r} times",
+                    scene_dict("rollback_pressed", ("OOP", "OOM")), [(0.005, press)] * n,
+                    halving=False, rollback=r))
     # the clean failure mode: a step the solver cannot take is refused, state unchanged
     sc = scene_dict("refusal", ("OOP",), "ramp", max_substep=0.005, min_substep=0.004)
     sc["muscles"]["force_scale"] = {"OOP": 300.0}
@@ -430,6 +476,7 @@ class CaseRun:
     memory_growth_mb: float = float("nan")
     equilibrium_change: float = float("nan")
     equilibrium_distances: list = field(default_factory=list)
+    rollbacks: int = 0                               # repeats of the rolled-back step
     start: dict = field(default_factory=dict)        # lip outputs before the first step
     wall: float = 0.0
 
@@ -522,6 +569,23 @@ def run_case(case, progress=None, probe=True):
                          "newton_iterations": stats.newton_iterations})
         if progress:
             progress(k + 1, n)
+    if case.rollback and run.steps == n:
+        h, acts = case.steps[-1]
+        saved, t_saved, first = sim.get_state(), sim.t, None
+        for i in range(case.rollback):
+            sim.set_state(saved)
+            sim.set_activations({m: acts.get(m, 0.0) for m in sim.face.muscles})
+            if not sim.step(t_saved + h).converged:
+                run.problem(n, f"repeat {i} of the rolled-back step refused")
+                break
+            out = lip_outputs(sim)
+            first = first or out
+            if out != first:
+                run.problem(n, f"repeat {i} of the rolled-back step differs: {out} "
+                               f"against {first}")
+                break
+        run.rollbacks = i + 1
+        sim.set_state(saved)
     missing = [k for k in case.refused if k not in run.refused]
     if missing:
         run.problem(None, f"steps {missing} should have been refused")
@@ -599,7 +663,7 @@ def fmu_spec(case, scene_path):
     sc = parse_scene(case.scene)
     return {"name": case.name, "scene": str(scene_path), "tolerance": sc.substep_tol,
             "max_substep": sc.max_substep, "steps": [[h, a] for h, a in case.steps],
-            "memory": case.memory}
+            "memory": case.memory, "rollback": case.rollback}
 
 
 def check_fmu_run(case, result, reference=None, bounds=None):
@@ -630,6 +694,11 @@ def check_fmu_run(case, result, reference=None, bounds=None):
             problems.append(f"step {k}: refused step changed the outputs")
         if len(problems) > 20:
             break
+    if case.rollback:
+        rb = result.get("rollback") or {}
+        if rb.get("repeats") != case.rollback or not rb.get("identical"):
+            problems.append(f"rollback: {rb.get('repeats')} of {case.rollback} repeats, "
+                            f"identical {rb.get('identical')} ({rb.get('problem', '')})")
     mem = result.get("memory", {})
     growth = mem["end"] - mem["start"] if "start" in mem and "end" in mem else float("nan")
     if growth > MEMORY_LIMIT_MB:

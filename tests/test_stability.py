@@ -48,6 +48,7 @@ def test_quick_case_keeps_every_invariant(name):
     assert run.min_det_f > 0 and np.isfinite(run.min_det_f)
     if not case.rest:
         assert run.dissipated > 0.0                   # the face moved, damping took energy
+    assert run.rollbacks == case.rollback             # every rolled-back repeat the same
     if name == "oop_buc_contact":                      # the lips do meet: contact is exercised
         assert 0 < run.lip_penetration <= S.CONTACT_TOLERANCE
         assert 0 < run.teeth_penetration <= S.CONTACT_TOLERANCE
@@ -66,7 +67,9 @@ def test_halving_every_substep_changes_the_outputs_little():
 def test_quick_cases_through_the_fmu(fmu, tmp_path):
     import subprocess
     import sys
-    names = ["oop_buc_contact", "tiny_steps", "huge_steps", "rest_1ms_steps", "refusal"]
+    names = ["all_muscles_step", "bang_bang_20hz", "oop_buc_contact", "pressed_released",
+             "switching_0", "switching_1", "switching_2", "rollback_pressed", "tiny_steps",
+             "huge_steps", "rest_1ms_steps", "refusal"]
     specs = [S.fmu_spec(QUICK[n], tmp_path / f"{n}.toml") for n in names]
     (tmp_path / "cases.json").write_text(json.dumps(specs))
     proc = subprocess.run([sys.executable, str(SCRIPTS / "stress_case.py"), str(fmu),
@@ -81,6 +84,7 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
         assert not problems, (n, problems)
         assert m["fmu_vs_solver"] <= S.FMU_MATCH_TOLERANCE
     assert results["refusal"]["statuses"] == [0, 2, 0]
+    assert results["rollback_pressed"]["rollback"]["repeats"] == QUICK["rollback_pressed"].rollback
     assert "did not converge" in proc.stdout                 # the refusal was logged
     assert proc.returncode == 0, proc.stderr[-3000:]         # and the process exits cleanly
 

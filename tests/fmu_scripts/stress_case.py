@@ -63,11 +63,32 @@ def run(md, unzip, vr, case):
             rows.append(dict(zip(LIP, values), t=t, **counts))
         else:
             rows.append({"refused": True, "unchanged": values == before})
+    rollback = {}
+    if case.get("rollback") and all(s == 0 for s in statuses):
+        h, acts = case["steps"][-1]
+        state, first = fmu.getFMUstate(), None
+        rollback = {"repeats": 0, "identical": True}
+        for i in range(case["rollback"]):
+            fmu.setFMUstate(state)
+            fmu.setReal(refs, [float(acts.get(m, 0.0)) for m in MUSCLES])
+            try:
+                fmu.doStep(t, h)
+            except FMICallException as exc:
+                rollback.update(identical=False, problem=f"repeat {i}: status {exc.status}")
+                break
+            values = fmu.getReal(out_refs)
+            first = first or values
+            rollback["repeats"] = i + 1
+            if values != first:
+                rollback.update(identical=False, problem=f"repeat {i}: {values} != {first}")
+                break
+        fmu.setFMUstate(state)
+        fmu.freeFMUstate(state)
     if case.get("memory"):
         mem["end"] = rss_mb()
     fmu.terminate()
     fmu.freeInstance()
-    return {"rows": rows, "statuses": statuses, "memory": mem,
+    return {"rows": rows, "statuses": statuses, "memory": mem, "rollback": rollback,
             "wall": time.perf_counter() - wall}
 
 
