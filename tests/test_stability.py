@@ -259,3 +259,21 @@ def test_full_case(case):
         half = S.run_case(case.halved(), probe=False)
         assert half.passed, _explain(half)
         assert S.halving_change(run, half) <= S.halving_limit(run)
+
+
+def test_randomized_campaign_through_the_fmu_a_few_seeds(tmp_path):
+    """Three seeds of benchmarks/fmu_campaign.py (the whole campaign is 200): random
+    schedules of all ten muscles at random 0.1-20 ms steps through the FMU's default model,
+    contact on; every step taken, outputs sane, no penetration measured outside the model,
+    clean exit."""
+    import re
+    import subprocess
+    import sys
+    from conftest import ROOT
+    run = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "fmu_campaign.py"),
+                          "--seeds", "0-2", "--batch", "3", "--keep", str(tmp_path)],
+                         capture_output=True, text=True, timeout=1200)
+    assert re.search(r"^3 of 3 schedules passed", run.stdout, re.M), \
+        run.stdout[-3000:] + run.stderr[-3000:]
+    assert len(re.findall(r"^seed\s+\d+: .*: pass$", run.stdout, re.M)) == 3
+    assert run.returncode == 0
