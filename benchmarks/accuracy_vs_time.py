@@ -32,9 +32,9 @@ Runs (each an independent task of benchmarks.sweep; the default sweep):
   refused at t = 0.092 s.)
 * the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
-* the `balanced` preset at substep error tolerances 1e-2 (its own until session 16),
-  2e-2 and 3e-2 mm, and `fast` at 1e-2 mm, the rest of each preset as it is (labels
-  "balanced at substep_tol 0.01" and so on): what the presets' 5e-2 mm costs;
+* the `balanced` preset at substep error tolerances 1e-2, 2e-2 and 3e-2 mm, and `fast`
+  at 1e-2 mm, the rest of each preset as it is (labels "balanced at substep_tol 0.01"
+  and so on): what the presets' 5e-2 mm costs;
 * the reduced-order fidelity `realtime` (solver.rom: its full-order knobs, coarse half face,
   LOOSE) with the model trained on open_round (`python benchmarks/rom_train.py --scene
   open_round`; left out, with that command printed, where no model is trained);

@@ -6,9 +6,9 @@
 
 Scene (`gesture`): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held to 0.3 s,
 lip and teeth contact on, lip aperture and protrusion recorded every 10 ms, at the
-`balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: since session 17
-substep error 5e-2 mm, substeps up to 5 ms, Newton 1e-4 on the residual and 1e-2 mm on the
-last update) on
+`balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: substep error
+5e-2 mm, substeps up to 5 ms, Newton 1e-4 on the residual and 1e-2 mm on the last update)
+on
 
     a  the reference (ANSYS) face, full face (../shared/data/reference-face or
        $FACEFMU_REFERENCE_FACE; skipped where absent)      target 27 s wall for 0.3 s
@@ -30,8 +30,8 @@ aperture and protrusion over the recorded times (the paths share the convergence
 criteria, so they must agree to a small multiple of the Newton tolerance), and probe_s,
 the seconds of a fixed workload (probe(): a PARDISO factorization and solves, a dense
 product) just before and after the run: the machine's speed drifts (case a's wall time
-was 26.7 s and 38.0 s within three minutes in session 17), so wall times compare only
-at similar probes, or one run after the other. A run whose
+has been 26.7 s and 38.0 s within three minutes), so wall times compare only at similar
+probes, or one run after the other. A run whose
 step fails after every cutback is reported (column failed) with its figures up to there.
 --profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.

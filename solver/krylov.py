@@ -22,18 +22,18 @@ Newton step, or the last round's direction) and Z = A^-1 V, V the Arnoldi basis 
 residual's Krylov space; (A + D) z_j = v_j + D z_j: one solve and one product with D per
 iteration, and the direction from the kept Z without another solve. du_0's coefficient
 a is free (du_0 joins the augmentation space below, with A du_0 known, and the iteration
-starts from zero): with a = 1 fixed the start's linear residual is -D du_0, which was 15
-to 30 times ||c|| where a step carries a slave into contact (a penalty's stiffness), and
-34 of 163 directions on benchmarks/fast_path.py's case a used up their budget of solves;
-with a free, 27 of 158, and 881 solves against 915 (session 16). The iteration stops
+starts from zero): with a = 1 fixed the start's linear residual is -D du_0, 15 to 30
+times ||c|| where a step carries a slave into contact (a penalty's stiffness), and 34 of
+163 directions on benchmarks/fast_path.py's case a use up their budget of solves; with a
+free, 27 of 158, and 881 solves against 915. The iteration stops
 when ||c - (A + D) du|| <= rtol ||c|| (the product A Z taken as V: to the factorization's
 precision). Where it does not within maxiter, no direction is returned and Newton
 refactorizes.
 
 rtol is Newton's forcing term (an inexact Newton direction): the residual and the
 convergence criteria are Newton's own, so it moves the converged state only within
-Newton's tolerance. 0.1 since session 16 (1e-2 before): on benchmarks/fast_path.py,
-a scratch override of the default in alternation with others, case a took 291 Newton
+Newton's tolerance. The default 0.1: on benchmarks/fast_path.py, with a scratch override
+of the default in alternation with others, case a took 291 Newton
 iterations, 72 factorizations and 36.2-38.4 s against 274, 91 and 41.8-45.3 s at 1e-2
 (3e-2: 294, 88, 42.0 s; 0.15: 303, 69, 31.1 and 37.2 s; 0.2 and 0.3: a cutback or two);
 case b 227 iterations, 77 factorizations, 11.5-12.1 s against 209, 86 and 14.5-17.7 s.

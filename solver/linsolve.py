@@ -43,9 +43,8 @@ def _cpus():
 # MKL (PARDISO) threads: one per CPU this process may run on, unless the user (or a host:
 # dask's nanny sets one thread per sweep worker) chose; set before pypardiso loads MKL.
 # On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
-# two threads against 166 s with one, case b in 28.5 s against 34.6 s (session 8, with
-# MKL_NUM_THREADS=2 and 1 back to back; docs/dev-notes/fast_path.md). An older measurement had one
-# thread faster (0.30 against 0.53 s for a face factorization). Inside an FMU `auto` is
+# two threads against 166 s with one, case b in 28.5 s against 34.6 s (MKL_NUM_THREADS=2
+# and 1 back to back; docs/dev-notes/fast_path.md). Inside an FMU `auto` is
 # SuperLU (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
@@ -141,8 +140,8 @@ class SuperLU(_Reusable):
 # own matrix, so the refinement buys nothing there). 1x1 diagonal pivoting refines only
 # after a perturbed pivot (iparm(8) = 0). A solve on case a's tangent (23,004 free DOF):
 # 0.011 against 0.035 s; case b's: 0.005 against 0.018 s; factorizations as fast, the
-# relative residual 2.5e-13 against 3.2e-13 (session 9, a scratch timing on tangents saved
-# from benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
+# relative residual 2.5e-13 against 3.2e-13 (a scratch timing on tangents saved from
+# benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
 # apart; figures of the whole gesture in docs/dev-notes/fast_path.md).
 # A single-precision factorization whose first solve leaves ||K x - b|| above this times
 # ||b|| is made again in double (case b's tangents: about 6e-5).
@@ -362,7 +361,7 @@ def free_mkl_buffers():
     through pypardiso. An FMU's process (fmpy's) with a scene on PARDISO aborted at its
     exit in 6 of 8 runs of three instances each without it (heap corruption reported by
     glibc), in none of 24 with it at the instances' terminate; with twelve instances, in 3
-    of 24 (session 17; facefmu/facefmu_slave.py)."""
+    of 24 (facefmu/facefmu_slave.py)."""
     path = os.environ.get("PYPARDISO_MKL_RT")
     if not path or "pypardiso" not in sys.modules:
         return

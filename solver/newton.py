@@ -40,9 +40,9 @@ meets the test the model met, or if the model's search ended at its best step (a
 in the contact force, where g has no root: the exact search ended there too, after ten
 residuals) and the state is admissible; else the exact search runs. That evaluation is
 the next iterate's residual. A contact evaluation costs about a twelfth of a residual on
-the reference face (1.6 against 18-20 ms). On benchmarks/fast_path.py's case a (docs/dev-notes/fast_path.md,
-session 14) both changes took the residuals from 1,693 to 1,016, the lip outputs within
-2e-5 mm.
+the reference face (1.6 against 18-20 ms). On benchmarks/fast_path.py's case a
+(docs/dev-notes/fast_path.md) both changes took the residuals from 1,693 to 1,016, the
+lip outputs within 2e-5 mm.
 
 An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
 larger of the first two residuals) or that stalls (not halved over ``stall_window``
@@ -152,10 +152,10 @@ class NewtonOptions:
     # residual and a solve, a new factorization about six to seven of them (an assembly
     # with the tangent, the factorization, the line search's residuals), so a rate of 0.7
     # pays: 0.7^7 = 0.08. Where lip contact changes status between iterates a new tangent
-    # does not converge fast either. benchmarks/fast_path.py, one run after the other
-    # (session 9): case a 254 s at 0.7 against 278 s at 0.5 and 320 s at 0.1 (501, 540,
-    # 613 factorizations; the same cutbacks, outputs within 3e-6 mm); case b within the
-    # machine's drift (284 against 311 factorizations; 0.8 no better). docs/dev-notes/fast_path.md.
+    # does not converge fast either. On benchmarks/fast_path.py, one run after the other,
+    # 0.7 took case a through fewer factorizations than 0.5 and 0.1 in less time (the same
+    # cutbacks, outputs within 3e-6 mm), case b through fewer within the machine's drift;
+    # 0.8 was no better. docs/dev-notes/fast_path.md.
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
     # Correct each direction for the contact status the step predicts, by low-rank updates
@@ -164,9 +164,7 @@ class NewtonOptions:
     # reference face's static OOP and OOP + BUC in one load step (as in
     # tests/test_muscle_actions.py, teeth contact) took 66 and 124 iterations with it
     # against 39 and 28 without on the half face, 63 and 93 against 40 and 29 on the full
-    # face (session 11, a scratch script). (Before that session's faded teeth rim, OOP +
-    # BUC stalled at lam = 0.483 on the half face with the update and on the full face
-    # without: a lip node released past a free edge of the teeth, a jump in force.)
+    # face (a scratch script).
     contact_update: bool | None = None
     # Refactorize within a call (the factorization of this key slowed or its step failed)
     # with the smooth terms' tangent of the key's last full assembly, if made within
@@ -185,11 +183,11 @@ class NewtonOptions:
     secant_search: bool = True
     # Once a reused factorization's step has been dropped in a call, later iterates of that
     # call skip the plain reused direction and go to the Krylov one (or a refactorization):
-    # on benchmarks/fast_path.py at balanced's soft lip penalty (session 18) 59 of 80
+    # on benchmarks/fast_path.py at balanced's soft lip penalty (LIP_SOFT) 59 of 80
     # reused directions of case a were dropped; with this, case a 162 -> 156 Newton
-    # iterations and 259 -> 218 residuals, 20.1 / 20.5 s against 20.9 / 21.4 s, case b
-    # 166 -> 157 and 235 -> 214, 11.4 / 11.1 s against 12.0 / 12.0 s, in alternation (at
-    # the stiff lips of session 17 it cost case a a cutback). docs/dev-notes/fast_path.md.
+    # iterations and 259 -> 218 residuals, case b 166 -> 157 and 235 -> 214, in
+    # alternation (at the stiff lip penalty, PENALTY, it cost case a a cutback).
+    # docs/dev-notes/fast_path.md.
     krylov_after_stale: bool = True
 
 

@@ -56,7 +56,7 @@ off the split's size) and the damping matrix's generation (solver.terms.inertia:
 rebuilt on each substep's start state by default, and beta K_n / h is the tangent's
 largest part, so a factorization then serves one substep; on the lip gesture of
 benchmarks/fast_path.py one made on the previous substep, 0.2 mm away, left 40 % of the
-residual in its linear model, and its step was dropped: a scratch diagnosis, session 11).
+residual in its linear model, and its step was dropped: a scratch diagnosis).
 """
 
 from dataclasses import dataclass, field

@@ -62,24 +62,25 @@ def trained(tmp_path_factory):
             "tasks": tasks, "results": results, "folder": folder}
 
 
-# (and the lip penalty of every preset until session 18, which softened balanced's)
-SESSION_15_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4,
-                           lip_penalty=1.0)
+# Tolerances for the comparisons of NewtonOptions on the lip gesture: substep error 1e-2 mm,
+# Newton 1e-6 on the residual and 1e-4 mm on its last update, the stiff lip penalty (PENALTY)
+REFERENCE_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4,
+                          lip_penalty=1.0)
 
 
 def gesture_both_ways(option, duration, count):
     """benchmarks/fast_path.py's lip gesture on the coarse half face (lip and teeth
     contact) for duration s, with NewtonOptions.option off and on: {on: (count(sim) after
-    the run, the recorded rows)}. At the tolerances `balanced` had until session 16
-    (substeps 1e-2 mm, Newton 1e-6 and 1e-4 mm), which these comparisons were made for:
-    the runs must agree to a small multiple of Newton's last update."""
+    the run, the recorded rows)}. At REFERENCE_BALANCED (substeps 1e-2 mm, Newton 1e-6 and
+    1e-4 mm), tighter than `balanced`: the runs must agree to a small multiple of Newton's
+    last update."""
     from benchmarks.fast_path import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     runs = {}
     for on in (False, True):
         sim = Simulation(parse_scene(gesture(duration)), level="coarse", half=True,
-                         **SESSION_15_BALANCED)
+                         **REFERENCE_BALANCED)
         setattr(sim.face.model.newton_options, option, on)
         rows = []
         sim.run(on_record=lambda s, row: rows.append(row))

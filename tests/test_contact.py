@@ -547,7 +547,7 @@ def _teeth_terms(anatomy, distance=3.0):
             for name, surface in anatomy.rigid_surfaces.items()]
 
 
-@pytest.mark.slow                   # 55 s on a slow day (session 10): out of the default suite
+@pytest.mark.slow                   # 55 s on a slow day: out of the default suite
 def test_face_lips_on_teeth_under_oop(face_anatomy):
     free = solver.FaceModel(face_anatomy)
     free.set_activations({"OOP": 0.5})
@@ -581,9 +581,9 @@ def test_face_lips_on_teeth_under_oop(face_anatomy):
 
 def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
     """The paper's static OOP + BUC on the full reference face in one load step: a lip node
-    passes a free edge of a teeth sheet near lam = 0.48. Released there (as before
-    session 11) its force jumped and Newton stalled, the load increment cut below 1e-6;
-    with the faded rim penalty the load path goes through."""
+    passes a free edge of a teeth sheet near lam = 0.48. Released there (fade 0) its force
+    jumps and Newton stalls, the load increment cut below 1e-6; with the faded rim penalty
+    the load path goes through."""
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     scene = parse_scene({"scene": {"analysis": "static"}, "muscles": {"driven": ["BUC", "OOP"]},
@@ -629,9 +629,8 @@ def test_reference_face_gesture_passes_where_a_lip_slave_met_its_patchs_edge(fac
     the edge of its patch at t = 0.18 s, where three triangles gave three laws: 4 to 10
     cutbacks per run, and with the exact faded derivatives every cutback failed at
     t = 0.184 s. With 24 the run passes with at most one cutback (one, at t = 0.15 s,
-    where a slave's nearest triangle turns across a concave edge). At the `balanced`
-    tolerances of session 16 (5e-2 mm substeps) it passes with none, and still fails with
-    12 candidates."""
+    where a slave's nearest triangle turns across a concave edge). At `balanced`'s substep
+    error tolerance (5e-2 mm) it passes with none, and still fails with 12 candidates."""
     from benchmarks.fast_path import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation

@@ -14,7 +14,7 @@ from solver.linsolve import make_solver
 from solver.meshgen import box
 from solver.terms.contact import LipContact, RigidContact
 from test_contact import STIFF, Runner, grid_surface, two_blocks
-from conftest import SESSION_15_BALANCED
+from conftest import REFERENCE_BALANCED
 
 
 def _check_linear_gaps(term, n, u, rng, h=1e-5):
@@ -189,7 +189,7 @@ def test_lip_gesture_takes_fewer_factorizations_with_the_update():
     runs = {}
     for update in (False, True):
         sim = Simulation(parse_scene(gesture(0.03)), level="coarse", half=True,
-                         **SESSION_15_BALANCED)
+                         **REFERENCE_BALANCED)
         sim.face.model.newton_options.contact_update = update
         its, rows = [0], []
 

@@ -13,7 +13,7 @@ from solver.linsolve import SuperLU, _openblas_threads, available, make_solver, 
 from solver.meshgen import box
 from solver.newton import NewtonOptions, newton
 from solver.transient import Transient
-from conftest import SESSION_15_BALANCED, assert_same_lips, gesture_both_ways
+from conftest import REFERENCE_BALANCED, assert_same_lips, gesture_both_ways
 
 TIP_FORCE = (0.0, 0.0, -1e-4)       # N: about 1.3 mm of tip deflection, a nonlinear bend
 
@@ -358,7 +358,7 @@ def test_partial_refresh_assembles_only_contact_within_a_call_and_reaches_the_sa
     runs = {}
     for partial, reach in ((False, 0.05), (True, 0.05), (True, 0.0)):
         sim = Simulation(parse_scene(gesture(0.03)), level="coarse", half=True,
-                         **SESSION_15_BALANCED)
+                         **REFERENCE_BALANCED)
         sim.face.model.newton_options.partial_refresh = partial
         sim.face.model.newton_options.partial_reach = reach
         sim.face.model.newton_options.krylov = False

@@ -56,9 +56,10 @@ def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
 
 
 def test_the_lip_penalty_of_a_preset_reaches_the_lip_contact_only():
-    """`balanced` softens the lip/lip penalty (a numerical setting, docs/dev-notes/fast_path.md
-    session 18): its LipContact's slave stiffnesses are LIP_SOFT / PENALTY times those of
-    the scene's default, the teeth's stay; a scene file's own lip_penalty is checked."""
+    """`balanced` softens the lip/lip penalty (a numerical setting,
+    docs/dev-notes/fast_path.md): its LipContact's slave stiffnesses are LIP_SOFT /
+    PENALTY times those of the scene's default, the teeth's stay; a scene file's own
+    lip_penalty is checked."""
     scene = Scene(duration=0.01, lip_contact=True, teeth_contact=True)
     soft = Simulation(scene, fidelity="balanced")
     stiff = Simulation(scene, fidelity="balanced", lip_penalty=PENALTY)
@@ -263,7 +264,7 @@ def test_a_failing_task_reports_its_error_and_the_sweep_goes_on(sweep):
     assert good["error"] == "" and good["ndof"] > 0
 
 
-@pytest.mark.slow                   # 66 s on a slow day (session 10): out of the default suite
+@pytest.mark.slow                   # 66 s on a slow day: out of the default suite
 def test_quick_level_study_error_falls_as_the_level_rises(sweep):
     """The check of `accuracy_vs_time.py --quick`: its level study (coarse and medium
     against paper at the default tolerances) over its duration."""

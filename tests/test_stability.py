@@ -208,7 +208,7 @@ def test_case_scenes_round_trip_through_toml(tmp_path):
 
 # ------------------------------------------------------------------ random sequences
 
-@pytest.mark.slow                   # 85 s on a slow day (session 10): out of the default suite
+@pytest.mark.slow                   # 85 s on a slow day: out of the default suite
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.lists(st.lists(st.floats(0.0, 1.0), min_size=10, max_size=10), min_size=2,
                 max_size=4), st.sampled_from([0.002, 0.01, 0.03]))

@@ -33,11 +33,11 @@ from ..terms.contact import PENALTY
 FORMAT = 1
 # The full-order physics a model's snapshots came from: bumped when a term's forces change
 # (the key then differs, so older models and cached snapshot runs are not used).
-# 2: lip contact faded beyond the edge of a slave's candidate triangles (session 4);
-# 3: the generic face's teeth one surface past the free inner surface (session 5);
-# 4: the teeth's penalty faded beyond their free edges, not released (session 11);
+# 2: lip contact faded beyond the edge of a slave's candidate triangles;
+# 3: the generic face's teeth one surface past the free inner surface;
+# 4: the teeth's penalty faded beyond their free edges, not released;
 # 5: the teeth's rest offsets, the lips' faded penalty with exact derivatives over the
-#    master's nodes, 24 candidate triangles per lip slave (session 15).
+#    master's nodes, 24 candidate triangles per lip slave.
 PHYSICS = 5
 ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
 

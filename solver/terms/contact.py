@@ -35,8 +35,8 @@ continuous all around the rim (its turn with the point is left out of the force,
 stays continuous, and of the tangent). With the face normal of the nearest triangle at
 free vertices too (as on the lips) the force jumps where a node passes from an edge's
 region to a vertex's: a static BUC solve once hung there; with the teeth released, the
-reference face's static OOP + BUC stalled at lam = 0.483 (session 11) where a lip node
-passed a free edge of a teeth sheet. Rigid surfaces that share a seam are joined
+reference face's static OOP + BUC stalled at lam = 0.483 where a lip node passed a free
+edge of a teeth sheet. Rigid surfaces that share a seam are joined
 into one term (joined_surfaces), so that a seam is an inner edge, not a rim.
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
