@@ -3,8 +3,10 @@ folders (an FMU is extracted to a new temporary folder at every start).
 
 numba's own locator files a kernel under a hash of its source file's absolute path, so a
 fresh extraction folder would miss the cache every time. The locator below files the
-solver's kernels under their module name instead; numba's freshness check (a hash of the
-source file's content) still recompiles them when the code changes.
+solver's kernels under their module name instead. Its freshness stamp is a hash of the
+content of every solver file that defines numba functions (numba's own stamp is the
+kernel's file alone): a kernel calls jitted helpers of other files, compiled into it, and
+an edit of a helper must recompile its callers too.
 
 Order: $NUMBA_CACHE_DIR if set, else $FACEFMU_CACHE_DIR/numba, else
 $XDG_CACHE_HOME/facefmu/numba, else ~/.cache/facefmu/numba. A directory that cannot be
@@ -16,15 +18,16 @@ can be written at all, the solver's kernels are not cached (they compile at ever
 Nothing fails.
 """
 
+import hashlib
 import os
 import stat
 import tempfile
 import warnings
 from pathlib import Path
 
-# Before numba is imported: numba loads Intel's SVML when it finds it (MKL's dependencies
-# bring one); imported inside an FMU beside MKL this corrupted the heap of fmpy's process
-# ("corrupted double-linked list" at exit). SVML only speeds up vectorized math calls.
+# Before numba is imported: numba uses Intel's SVML for vectorized math calls when it
+# finds the library (MKL's dependencies bring one), so the kernels' rounding would depend
+# on what the process has loaded; without it they are the same everywhere.
 os.environ.setdefault("NUMBA_DISABLE_INTEL_SVML", "1")
 
 
@@ -115,6 +118,24 @@ def _impl(caching):
     return getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 
+_KERNEL_STAMP = {}
+
+
+def kernel_sources_stamp(root=None):
+    """sha256 (hex) of the content of every .py file under root (default: the solver
+    package) that defines numba functions (an @njit decorator), in path order;
+    computed once per root and process."""
+    root = Path(root or Path(__file__).resolve().parent)
+    if root not in _KERNEL_STAMP:
+        digest = hashlib.sha256()
+        for path in sorted(root.rglob("*.py")):
+            data = path.read_bytes()
+            if b"@njit" in data:
+                digest.update(str(path.relative_to(root)).encode() + b"\0" + data + b"\0")
+        _KERNEL_STAMP[root] = digest.hexdigest()
+    return _KERNEL_STAMP[root]
+
+
 def _install_stable_locator():
     from numba.core import caching
 
@@ -126,6 +147,9 @@ def _install_stable_locator():
             import numba.core.config as config
             self._cache_path = os.path.join(config.CACHE_DIR, "facefmu",
                                             py_func.__module__.rpartition(".")[0])
+
+        def get_source_stamp(self):
+            return kernel_sources_stamp()
 
         @classmethod
         def from_function(cls, py_func, py_file):

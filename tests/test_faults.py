@@ -359,3 +359,26 @@ def test_fmu_reset_reinstantiation_free_instance_and_bad_parameters(fmu, tmp_pat
         assert needle in run.stdout, needle                    # each logged, named
     assert res["then3"] == ref                                 # and a new instance works
     assert run.returncode == 0, run.stderr[-3000:]             # the process exits cleanly
+
+
+def test_the_kernel_cache_stamp_covers_every_kernel_file(tmp_path):
+    """numba's cached kernels are keyed by the content of every solver file with numba
+    functions, so that an edit of a jitted helper in another file recompiles its callers;
+    files without numba functions do not take part."""
+    import shutil
+    from solver._cache import kernel_sources_stamp
+    from conftest import ROOT
+    root = tmp_path / "solver"
+    shutil.copytree(ROOT / "solver" / "kernels", root / "kernels")
+    shutil.copy(ROOT / "solver" / "fidelity.py", root / "fidelity.py")
+    first = kernel_sources_stamp(root)
+    assert kernel_sources_stamp(root) == first and len(first) == 64
+    again = tmp_path / "again"
+    shutil.copytree(root, again)
+    (again / "fidelity.py").write_text((again / "fidelity.py").read_text() + "\n# edit\n")
+    assert kernel_sources_stamp(again) == first          # not a kernel file
+    edited = tmp_path / "edited"
+    shutil.copytree(root, edited)
+    helper = edited / "kernels" / "invariants.py"
+    helper.write_text(helper.read_text() + "\n# edit\n")
+    assert kernel_sources_stamp(edited) != first

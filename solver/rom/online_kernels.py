@@ -21,9 +21,7 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
 * ``brick_forces_full``: the same brick forces unreduced, on the whole mesh (the trust
   check's full-order residual).
 * the damping (K_n, the passive small-strain stiffness on a shape): solver.rom.
-  damping_kernels, except the matrix-free damping force, which brick_forces_r adds (a
-  cached numba function must not call into another file: numba's cache checks only the
-  caller's file).
+  damping_kernels, except the matrix-free damping force, which brick_forces_r adds.
 """
 
 import numpy as np
