@@ -121,9 +121,13 @@ class Simulation:
         """Advance to t_end (transient) or solve the equilibrium (static); StepStats."""
         if self.integrator is not None:
             self.integrator.t = self.t
+            start = self.face.activation.start.copy()
             stats = self.integrator.advance(t_end)
             if not stats.converged:
-                self.face.activation.target = self.face.activation.start.copy()
+                # a substep at the full activations (hold "step") committed them before
+                # a later one failed: the state goes back to the call's start
+                self.face.activation.start = start
+                self.face.activation.target = start.copy()
         else:
             res = self.face.solve_static()
             stats = StepStats(converged=res.converged, substeps=len(res.steps),

@@ -176,3 +176,39 @@ def test_a_step_repeated_after_set_state_repeats_exactly_with_contact():
         runs.append(sim.face.u.copy())
         sim.set_state(start)
     assert np.array_equal(runs[0], runs[1])
+
+
+def test_a_refused_step_keeps_the_activations_it_started_with(monkeypatch):
+    """With hold = "step" every substep runs at the new activations and the first one
+    accepted commits them; when a later substep of the same call fails, the refused call
+    leaves the whole state (activations included) as it was."""
+    from solver.scene import parse_scene
+    from solver.simulation import Simulation
+    from solver.stability import scene_dict
+    sim = Simulation(parse_scene(scene_dict("held", ("OOP",), "step", lips=False,
+                                            teeth=False)))
+    sim.set_activations({"OOP": 0.2})
+    assert sim.step(0.005).converged
+    before = sim.get_state()
+    starts = []
+    real = Transient._substep
+
+    def second_fails(self, sysm, u_n, *args, **kwargs):
+        starts.append(u_n.copy())
+        u, rep = real(self, sysm, u_n, *args, **kwargs)
+        if not np.array_equal(u_n, starts[0]):     # a substep after an accepted one
+            rep.reason = "made to fail"
+            return None, rep
+        return u, rep
+    monkeypatch.setattr(Transient, "_substep", second_fails)
+    sim.set_activations({"OOP": 0.9})
+    stats = sim.step(sim.t + 0.02)                  # several substeps
+    assert not stats.converged and "made to fail" in stats.reason
+    assert any(not np.array_equal(u, starts[0]) for u in starts)    # one was accepted
+    after = sim.get_state()
+    assert after["t"] == before["t"]
+    for key in ("u", "v", "activation"):
+        assert np.array_equal(after[key], before[key]), key
+    monkeypatch.undo()
+    sim.set_activations({"OOP": 0.9})
+    assert sim.step(sim.t + 0.005).converged        # and the next step works

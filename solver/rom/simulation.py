@@ -193,6 +193,7 @@ class ReducedSimulation(Simulation):
                     "fell back to the full model"
                 return stats
             if not ok:
+                act.start = start[2]
                 act.target = act.start.copy()
                 stats.converged = False
                 self.last = stats
