@@ -11,34 +11,21 @@ Reduced-order (`fidelity = "realtime"`) models: --rom packs trained model files
 slave looks first; --with-realtime packs the cached model of the built-in `speech` scene
 (all ten muscles, lip and teeth contact: `python benchmarks/rom_train.py` trains it).
 
-The FMU's linux64 binary is a corrected build of pythonfmu's C++ wrapper, not the one that
-pythonfmu 0.7.0 ships: the shipped one reads and writes freed heap memory when the
-importer's process exits (glibc then aborts it, "corrupted double-linked list", exit code
-134; docs/dev-notes/exit-crash.md, patches/pythonfmu/README.md). It is built from the
-wrapper sources of the pythonfmu 0.6.9 sdist (from PyPI, sha256-pinned) with
-patches/pythonfmu/*.patch applied (0001 is upstream's change that made 0.7.0's wrapper),
-with the C++ compiler and Python headers found here; built once (about 10 s, plus the
-sdist download on first use) and cached under ~/.cache/facefmu/pythonfmu-wrapper
-($FACEFMU_CACHE_DIR or $XDG_CACHE_HOME move it). $FACEFMU_PYTHONFMU_SDIST may name a local
-copy of the sdist (offline machines). Where it cannot be built (no compiler or headers,
-no sdist, not Linux x86_64, a pythonfmu other than 0.7.0) the build says why on stderr
-and keeps pythonfmu's wrapper; --stock-wrapper keeps it deliberately and
---require-patched-wrapper makes that an error.
+The FMU's linux64 binary is pythonfmu's C++ wrapper corrected (facefmu.wrapper): pythonfmu
+0.7.0's own corrupts the heap of the importer's process at its exit. Where the corrected
+one cannot be built (no compiler or headers, no sdist, not Linux x86_64, a pythonfmu other
+than 0.7.0) the build says why on stderr and keeps pythonfmu's; --stock-wrapper keeps it
+deliberately and --require-patched-wrapper makes that an error. --fix-wrapper X.fmu puts
+the corrected wrapper into other FMUs that pythonfmu built.
 """
 
 import argparse
-import hashlib
-import os
-import platform
-import re
 import shutil
-import subprocess
 import sys
-import sysconfig
-import tarfile
 import tempfile
-import zipfile
 from pathlib import Path
+
+from facefmu.wrapper import WrapperUnavailable, patched_wrapper, replace_wrapper
 
 ROOT = Path(__file__).resolve().parent
 REQUIREMENTS = """numpy>=1.26
@@ -46,182 +33,6 @@ scipy>=1.11
 numba>=0.59
 pypardiso>=0.4.6; platform_machine == 'x86_64'
 """
-
-# pythonfmu's C++ wrapper, corrected (module docstring; patches/pythonfmu/README.md)
-PATCHES = ROOT / "patches" / "pythonfmu"
-WRAPPER_FOR = "0.7.0"                  # the pythonfmu whose wrapper the patches reproduce
-SDIST = ("pythonfmu", "0.6.9",         # the last sdist with the wrapper's sources
-         "13eab981d3c86704ab19b35ebcee9347b2dcc378bbe8d0b43c9ae1fe35bc9fa7")
-WRAPPER_SOURCES = "pythonfmu/pythonfmu-export"        # inside the sdist's top folder
-LIMITED_API = "0x030B0000"             # Python's stable ABI as of 3.11 (requires-python)
-
-
-class WrapperUnavailable(Exception):
-    """The corrected wrapper cannot be built here (the message says why)."""
-
-
-def _cache_root():
-    if os.environ.get("FACEFMU_CACHE_DIR"):
-        return Path(os.environ["FACEFMU_CACHE_DIR"])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "facefmu"
-
-
-def _sha256(path):
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def _sdist(folder):
-    """The pinned pythonfmu sdist: $FACEFMU_PYTHONFMU_SDIST, the cached copy, or pip
-    download from the package index; its sha256 checked."""
-    name, version, sha = SDIST
-    path = Path(os.environ.get("FACEFMU_PYTHONFMU_SDIST") or
-                folder / f"{name}-{version}.tar.gz")
-    if not path.is_file():
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            run = subprocess.run(
-                [sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary",
-                 ":all:", "--disable-pip-version-check", "-d", tmp, f"{name}=={version}"],
-                capture_output=True, text=True)
-            got = Path(tmp) / path.name
-            if run.returncode != 0 or not got.is_file():
-                raise WrapperUnavailable(f"cannot download the {name} {version} sdist: "
-                                         + (run.stderr.strip().splitlines() or ["?"])[-1])
-            os.replace(got, path)
-    if _sha256(path) != sha:
-        raise WrapperUnavailable(f"{path}: sha256 {_sha256(path)}, expected {sha}")
-    return path
-
-
-def apply_patch(text, root):
-    """Apply a unified diff (paths a/... b/... relative to root) to the files under root,
-    strictly: every hunk's context and removed lines must be where the hunk says."""
-    lines = text.splitlines(keepends=True)
-    i, changed = 0, []
-    while i < len(lines):
-        if not (lines[i].startswith("--- ") and i + 1 < len(lines)
-                and lines[i + 1].startswith("+++ ")):
-            i += 1
-            continue
-        target = lines[i + 1][4:].split("\t")[0].strip()
-        if not target.startswith("b/"):
-            raise ValueError(f"bad file header at line {i + 2}")
-        path = root / target[2:]
-        old = path.read_text().splitlines(keepends=True)
-        new, pos, i = [], 0, i + 2
-        while i < len(lines) and lines[i].startswith("@@ "):
-            m = re.match(r"@@ -(\d+)(?:,(\d+))? \+\d+(?:,(\d+))? @@", lines[i])
-            if m is None:
-                raise ValueError(f"bad hunk header at line {i + 1}")
-            n_old, n_new = int(m.group(2) or 1), int(m.group(3) or 1)
-            start = int(m.group(1)) - (1 if n_old else 0)
-            if start < pos:
-                raise ValueError(f"hunks out of order at line {i + 1}")
-            new += old[pos:start]
-            pos, i = start, i + 1
-            while n_old or n_new:
-                line = lines[i] if i < len(lines) else ""
-                tag, body = (line[:1], line[1:]) if line.strip("\r\n") else (" ", "\n")
-                if tag in (" ", "-"):
-                    if pos >= len(old) or old[pos].rstrip("\r\n") != body.rstrip("\r\n"):
-                        raise ValueError(f"{target[2:]} does not match at line {pos + 1}")
-                    if tag == " ":
-                        new.append(old[pos])
-                        n_new -= 1
-                    pos, n_old = pos + 1, n_old - 1
-                elif tag == "+":
-                    new.append(body)
-                    n_new -= 1
-                elif tag != "\\":
-                    raise ValueError(f"bad hunk line {i + 1}")
-                i += 1
-            if n_old < 0 or n_new < 0:
-                raise ValueError(f"hunk ending at line {i} has the wrong length")
-        new += old[pos:]
-        path.write_text("".join(new))
-        changed.append(path)
-    return changed
-
-
-def _compiler():
-    for cxx in (os.environ.get("CXX"), "c++", "g++", "clang++"):
-        if cxx and shutil.which(cxx.split()[0]):
-            return cxx.split()
-    raise WrapperUnavailable("no C++ compiler (set CXX, or install g++)")
-
-
-def patched_wrapper():
-    """The corrected libpythonfmu-export.so for this machine's Python (built and cached on
-    first use); WrapperUnavailable says why there is none."""
-    import pythonfmu
-    if not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")):
-        raise WrapperUnavailable(f"the patches are for linux64 (this is {sys.platform} "
-                                 f"{platform.machine()})")
-    if pythonfmu.__version__ != WRAPPER_FOR:
-        raise WrapperUnavailable(f"pythonfmu {pythonfmu.__version__} is installed; the "
-                                 f"corrected wrapper is pythonfmu {WRAPPER_FOR}'s")
-    include = Path(sysconfig.get_paths()["include"])
-    if not (include / "Python.h").is_file():
-        raise WrapperUnavailable(f"no Python headers ({include / 'Python.h'}; on Debian or "
-                                 "Ubuntu: apt install python3-dev)")
-    cxx = _compiler()
-    patches = sorted(PATCHES.glob("*.patch"))
-    version = subprocess.run([*cxx, "--version"], capture_output=True, text=True).stdout
-    key = hashlib.sha256("\0".join(
-        [SDIST[2], LIMITED_API, str(include), " ".join(cxx), version]
-        + [p.read_text() for p in patches]).encode()).hexdigest()[:16]
-    cache = _cache_root() / "pythonfmu-wrapper"
-    out = cache / key / "libpythonfmu-export.so"
-    if out.is_file():
-        return out
-    sdist = _sdist(cache)
-    with tempfile.TemporaryDirectory(prefix="facefmu-wrapper-") as tmp:
-        tmp = Path(tmp)
-        top = f"{SDIST[0]}-{SDIST[1]}/"
-        with tarfile.open(sdist) as tar:
-            members = [m for m in tar.getmembers() if m.isfile() and
-                       m.name.startswith(top + WRAPPER_SOURCES + "/")]
-            for m in members:
-                dest = tmp / m.name[len(top):]
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                dest.write_bytes(tar.extractfile(m).read())
-        for patch in patches:
-            try:
-                apply_patch(patch.read_text(), tmp)
-            except (ValueError, OSError) as exc:
-                raise WrapperUnavailable(f"{patch.name}: {exc}") from exc
-        src = tmp / WRAPPER_SOURCES / "src"
-        built = tmp / "libpythonfmu-export.so"
-        cmd = [*cxx, "-std=c++17", "-O2", "-fPIC", "-shared", "-DNDEBUG",
-               f"-DPy_LIMITED_API={LIMITED_API}", "-I", str(src), "-I", str(include),
-               str(src / "pythonfmu" / "fmi2.cpp"), str(src / "pythonfmu" / "PySlaveInstance.cpp"),
-               "-o", str(built)]
-        run = subprocess.run(cmd, capture_output=True, text=True)
-        if run.returncode != 0:
-            raise WrapperUnavailable("the wrapper did not compile:\n" + run.stderr[-3000:])
-        out.parent.mkdir(parents=True, exist_ok=True)
-        part = out.with_suffix(f".{os.getpid()}.part")
-        shutil.copy2(built, part)
-        os.replace(part, out)                       # atomic: parallel builds may race
-    return out
-
-
-def replace_wrapper(fmu, wrapper):
-    """Put wrapper in place of the FMU's linux64 binary (rewrites the zip)."""
-    fmu = Path(fmu)
-    part = fmu.with_suffix(".fmu.part")
-    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(part, "w") as dst:
-        names = [n for n in src.namelist() if n.startswith("binaries/linux64/")
-                 and n.endswith(".so")]
-        if len(names) != 1:
-            raise SystemExit(f"{fmu}: expected one linux64 binary, found {names}")
-        for info in src.infolist():
-            if info.filename == names[0]:
-                dst.write(wrapper, info.filename, compress_type=info.compress_type)
-            else:
-                dst.writestr(info, src.read(info.filename))
-    os.replace(part, fmu)
-
 
 def realtime_model(scene="speech"):
     """The cached realtime model file of a scene (built-in name or TOML path); SystemExit

@@ -31,7 +31,7 @@ abort at exit.
 --wrapper: which libpythonfmu-export.so all the extracted FMUs run: the one each was built
   with (built: FaceFMU gets build_fmu.py's corrected wrapper where it can be built, the
   `pythonfmu build` FMUs pythonfmu's), pythonfmu's own as installed (stock: 0.7.0's,
-  which aborts), the corrected one (patched: build_fmu.patched_wrapper(), built if
+  which aborts), the corrected one (patched: facefmu.wrapper.patched_wrapper(), built if
   absent), or a file.
 --env KEY=VALUE: set in the children (e.g. MALLOC_PERTURB_=165, which fills freed memory
   so that a use after free shows; MALLOC_CHECK_=3 needs
@@ -241,10 +241,9 @@ def build(kinds, dest):
 
 
 def patched_wrapper():
-    """The wrapper build_fmu.py builds from patches/pythonfmu (built now if absent)."""
-    sys.path.insert(0, str(ROOT))
-    import build_fmu
-    return build_fmu.patched_wrapper()
+    """The corrected wrapper (facefmu.wrapper; built now if absent)."""
+    from facefmu.wrapper import patched_wrapper as build
+    return build()
 
 
 def extract(fmus, dest, wrapper=None):

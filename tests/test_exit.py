@@ -1,5 +1,5 @@
 """Processes that host FaceFMU exit cleanly: the FMU carries the corrected pythonfmu wrapper
-(build_fmu.py, patches/pythonfmu), and fresh fmpy processes that instantiate, step,
+(facefmu.wrapper, patches/pythonfmu), and fresh fmpy processes that instantiate, step,
 terminate and free it (alone, two instances, beside the motor-control FMU, a failed
 initialization beside a good instance; PARDISO on) all exit with status 0.
 The whole campaign (100 processes and 30 runs of the main job) is
@@ -14,9 +14,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
-
-sys.path.insert(0, str(ROOT))
-import build_fmu  # noqa: E402
+from facefmu import wrapper
 
 
 def _binary(fmu):
@@ -32,17 +30,17 @@ def test_the_fmu_carries_the_corrected_wrapper(fmu):
              / "libpythonfmu-export.so").read_bytes()
     shipped = _binary(fmu)
     assert shipped != stock
-    assert shipped == build_fmu.patched_wrapper().read_bytes()
+    assert shipped == wrapper.patched_wrapper().read_bytes()
 
 
 def test_the_patches_apply_strictly(tmp_path):
     src = tmp_path / "a.txt"
     src.write_text("one\ntwo\nthree\n")
     patch = "--- a/a.txt\n+++ b/a.txt\n@@ -1,3 +1,3 @@\n one\n-two\n+TWO\n three\n"
-    build_fmu.apply_patch(patch, tmp_path)
+    wrapper.apply_patch(patch, tmp_path)
     assert src.read_text() == "one\nTWO\nthree\n"
     with pytest.raises(ValueError, match="does not match at line 2"):
-        build_fmu.apply_patch(patch, tmp_path)                 # "two" is gone
+        wrapper.apply_patch(patch, tmp_path)                 # "two" is gone
     assert src.read_text() == "one\nTWO\nthree\n"
 
 
