@@ -56,12 +56,19 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import textwrap
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CONTROL = ROOT / "examples" / "motor_control"
+
+# the test slaves' variables: an output x and a fixed parameter fail
+VARIABLES = '''\
+        self.x, self.fail = 0.0, 0.0
+        self.register_variable(Real("x", causality=Fmi2Causality.output))
+        self.register_variable(Real("fail", causality=Fmi2Causality.parameter,
+                                    variability=Fmi2Variability.fixed))
+'''
 
 TRIV = '''
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
@@ -70,11 +77,7 @@ from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 class Triv(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.x, self.fail = 0.0, 0.0
-        self.register_variable(Real("x", causality=Fmi2Causality.output))
-        self.register_variable(Real("fail", causality=Fmi2Causality.parameter,
-                                    variability=Fmi2Variability.fixed))
-
+''' + VARIABLES + '''
     def exit_initialization_mode(self):
         if self.fail:
             raise ValueError("fail parameter set")
@@ -102,11 +105,7 @@ def _relax(u, h):
 class Numpy(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.x, self.fail = 0.0, 0.0
-        self.register_variable(Real("x", causality=Fmi2Causality.output))
-        self.register_variable(Real("fail", causality=Fmi2Causality.parameter,
-                                    variability=Fmi2Variability.fixed))
-        self.u = np.zeros(200)
+''' + VARIABLES + '''        self.u = np.zeros(200)
         n = 200
         self.a = sp.diags([-np.ones(n - 1), 4 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1],
                           format="csc")
