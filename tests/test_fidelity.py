@@ -160,11 +160,11 @@ def _slave(**params):
     return fmu
 
 
-def test_fmu_declares_a_fidelity_string_parameter_defaulting_to_the_scene():
+def test_fmu_declares_a_fidelity_string_parameter_defaulting_to_balanced():
     root = _slave().to_xml()
     var = next(v for v in root.find("ModelVariables") if v.get("name") == "fidelity")
     assert var.get("causality") == "parameter" and var.get("variability") == "fixed"
-    assert var[0].tag == "String" and var[0].get("start") == ""
+    assert var[0].tag == "String" and var[0].get("start") == "balanced"
     assert all(n in var.get("description") for n in FIDELITIES)
 
 
@@ -175,9 +175,27 @@ def test_fmu_fidelity_preset_sets_level_and_tolerances_and_warns_for_ignored_par
     assert fmu.sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
     assert any("level = 'paper' not used" in m.msg and "balanced" in m.msg
                for m in fmu.log_queue)
-    plain = _slave(level="medium", tolerance=2e-3)            # fidelity "": the parameters
+    plain = _slave(fidelity="", level="medium", tolerance=2e-3)  # "": the parameters
     plain.exit_initialization_mode()
     assert (plain.sim.scene.level, plain.sim.scene.substep_tol) == ("medium", 2e-3)
+    default = _slave()                                        # the FMU's default: balanced
+    default.exit_initialization_mode()
+    assert default.sim.scene.level == "medium"
+    assert default.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
+
+
+def test_fmu_keeps_a_scene_files_fidelity_unless_the_parameter_is_set(tmp_path):
+    scene = tmp_path / "fast.toml"
+    scene.write_text('[scene]\nfidelity = "fast"\n[muscles]\ndriven = ["OOP"]\n')
+    own = _slave(scene=str(scene))
+    own.exit_initialization_mode()
+    assert own.fidelity == "fast"
+    assert own.sim.scene.max_substep == PRESETS["fast"]["max_substep"]
+    assert PRESETS["fast"]["max_substep"] != PRESETS["balanced"]["max_substep"]
+    chosen = _slave(scene=str(scene))
+    chosen._set_fidelity("balanced")                          # what a master's setString does
+    chosen.exit_initialization_mode()
+    assert chosen.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
 
 
 def test_fmu_unknown_fidelity_fails_initialization_with_a_logged_message():
