@@ -2,12 +2,16 @@
 convergence check and (--fmu) the same cases through the built FMU with fmpy; a table.
 
     python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
-                                [--out out/stress] [--doc docs/stability.md]
+                                [--anatomy generic|reference|FOLDER] [--level LEVEL]
+                                [--fidelity PRESET] [--out out/stress] [--doc FILE]
 
 With no options it runs every full case in process and through the FMU and rewrites
 docs/stability.md whole (commit, date, wall time, the table, the failures). --quick runs
 the CI versions of the cases; --cases a subset; --no-fmu skips the FMU rows; these write
-the report to OUT only, unless --doc names a file. Writes OUT/stress.csv and
+the report to OUT only, unless --doc names a file. --anatomy, --level and --fidelity run
+every case on another configuration (solver.stability.configured: the reference face, the
+generic face's paper level, a preset's mesh and tolerances); its rows are named
+CASE@CONFIGURATION. Writes OUT/stress.csv and
 OUT/stress.md; exits with 1 when a case fails.
 
 Columns: pass; steps (accepted communication steps) and refused ones; substeps, Newton
@@ -95,9 +99,9 @@ def build_fmu(dest):
 
 
 def run_fmu(selected, runs, out, notes, fmu=None):
-    from solver.anatomy.load import load_anatomy
+    from solver.simulation import Simulation
     fmu = Path(fmu) if fmu else build_fmu(out / "fmu")
-    bounds = S.output_bounds(load_anatomy("generic", "coarse", True))
+    bounds = S.output_bounds(Simulation(parse_scene(selected[0].scene)).anatomy)
     rows, problems = [], {}
     with tempfile.TemporaryDirectory(prefix="facefmu-stress-") as tmp:
         tmp = Path(tmp)
@@ -199,13 +203,22 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "out" / "stress"))
     ap.add_argument("--doc", help="also write the markdown report there (default: "
                     "docs/stability.md for the whole run)")
+    ap.add_argument("--anatomy", default="generic",
+                    help="generic, reference (../shared/data/reference-face) or a folder")
+    ap.add_argument("--level", help="the generic face's level (coarse, medium, paper, fine)")
+    ap.add_argument("--fidelity", help="a preset of solver.fidelity (fast, balanced, "
+                    "accurate)")
     args = ap.parse_args(argv)
-    if args.doc is None and not (args.quick or args.cases or args.no_fmu or args.no_halving):
+    if args.anatomy == "reference":
+        args.anatomy = str(ROOT.parent / "shared" / "data" / "reference-face")
+    other = args.anatomy != "generic" or args.level or args.fidelity
+    if args.doc is None and not (args.quick or args.cases or args.no_fmu or args.no_halving
+                                 or other):
         args.doc = str(ROOT / "docs" / "stability.md")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    selected = [c for c in S.cases(full=not args.quick)
-                if not args.cases or c.name in args.cases]
+    selected = [S.configured(c, args.anatomy, args.level, args.fidelity)
+                for c in S.cases(full=not args.quick) if not args.cases or c.name in args.cases]
     if args.cases and len(selected) != len(args.cases):
         known = [c.name for c in S.cases(full=not args.quick)]
         raise SystemExit(f"unknown case in {args.cases}; known: {known}")

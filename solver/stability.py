@@ -47,6 +47,7 @@ the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
 import os
 import resource
 import time
+from pathlib import Path
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -113,6 +114,29 @@ def scene_dict(name, driven, hold="step", lips=True, teeth=True, **solver):
             "muscles": {"driven": list(driven)},
             "effects": {"lip_contact": lips, "teeth_contact": teeth},
             "solver": {"hold": hold, **solver}}
+
+
+def configured(case, anatomy="generic", level=None, fidelity=None):
+    """The case on another configuration: anatomy ("generic" or an ANSYS face folder),
+    level (the generic face's; None: the case's, or the fidelity's where one is given) and
+    fidelity (a preset of solver.fidelity, as a scene file's `fidelity`; None: the case's
+    own tolerances). The name says which."""
+    scene = {k: dict(v) for k, v in case.scene.items()}
+    tags = []
+    if str(anatomy) != "generic":
+        scene["anatomy"] = {"source": str(anatomy), "half": True}
+        tags.append("reference" if "reference" in str(anatomy) else Path(anatomy).name)
+    elif level or fidelity:
+        scene["anatomy"].pop("level")
+        if level:
+            scene["anatomy"]["level"] = level
+            tags.append(level)
+    if fidelity:
+        scene["scene"]["fidelity"] = fidelity
+        tags.append(fidelity)
+    if not tags:
+        return case
+    return replace(case, name=f"{case.name}@{'+'.join(tags)}", scene=scene)
 
 
 def _ramp(t, t_full, value):
@@ -657,11 +681,14 @@ FMU_MATCH_TOLERANCE = 1e-3
 
 def fmu_spec(case, scene_path):
     """The JSON description of a case for tests/fmu_scripts/stress_case.py (the scene
-    written to scene_path; the FMU's tolerance and max_substep parameters from it)."""
+    written to scene_path; the FMU's fidelity, anatomy, level, half_face, tolerance and
+    max_substep parameters from it)."""
     from pathlib import Path
     Path(scene_path).write_text(to_toml(case.scene))
     sc = parse_scene(case.scene)
-    return {"name": case.name, "scene": str(scene_path), "tolerance": sc.substep_tol,
+    return {"name": case.name, "scene": str(scene_path), "fidelity": sc.fidelity,
+            "anatomy": sc.anatomy, "level": sc.level, "half": sc.half,
+            "tolerance": sc.substep_tol,
             "max_substep": sc.max_substep, "steps": [[h, a] for h, a in case.steps],
             "memory": case.memory, "rollback": case.rollback}
 

@@ -35,8 +35,13 @@ def run(md, unzip, vr, case):
     fmu.instantiate(loggingOn=True)
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
-    fmu.setString([vr["scene"], vr["fidelity"]], [case["scene"], case.get("fidelity", "")])
-    fmu.setReal([vr["tolerance"], vr["max_substep"]], [case["tolerance"], case["max_substep"]])
+    fmu.setString([vr["scene"], vr["fidelity"], vr["anatomy"]],
+                  [case["scene"], case.get("fidelity", ""), case.get("anatomy", "generic")])
+    if not case.get("fidelity"):                # a preset sets them itself
+        fmu.setString([vr["level"]], [case.get("level", "coarse")])
+        fmu.setBoolean([vr["half_face"]], [case.get("half", True)])
+        fmu.setReal([vr["tolerance"], vr["max_substep"]],
+                    [case["tolerance"], case["max_substep"]])
     fmu.exitInitializationMode()
     refs = [vr[m] for m in MUSCLES]
     out_refs = [vr[k] for k in LIP]
