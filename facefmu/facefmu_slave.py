@@ -15,8 +15,11 @@ What a master sees:
 * fidelity: "balanced" (default) and the other presets of solver.fidelity (fast,
   accurate) set the mesh level, half face, substep and Newton tolerances and the element
   formulation themselves: the parameters level, half_face, tolerance and max_substep are
-  then not used, with a warning for each one set away from its default. "" runs the scene
-  as its file states it, with those four parameters. "realtime" runs the scene's
+  then not used, with a warning for each one the master set. "" runs the scene as its
+  file states it, with those four parameters where the master set them.
+* A parameter the master does not set leaves the scene file's own value (anatomy, level,
+  half face, tolerances, fidelity); the start values in modelDescription.xml are those of
+  the built-in scenes. "realtime" runs the scene's
   reduced-order model (solver.rom): the one packed in the FMU's resources/rom (python
   build_fmu.py --rom FILE or --with-realtime), else the user's cache; without a model for
   the scene, initialization logs the training command and ends in fmi2Fatal.
@@ -89,32 +92,38 @@ class FaceFMU(Fmi2Slave):
                                        variability=Fmi2Variability.discrete,
                                        description="failed substeps retried with half the "
                                                    "step in the last doStep"))
-        fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
+        self._set = set()                       # the parameters the master has set
+
+        def fixed(name):
+            return dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                        setter=lambda value: self._set_parameter(name, value))
         self.register_variable(String("anatomy", description="'generic' or the path of an "
-                                      "ANSYS face folder", **fixed))
+                                      "ANSYS face folder", **fixed("anatomy")))
         self.register_variable(String("level", description="generic face resolution: coarse, "
-                                      "medium, paper or fine", **fixed))
+                                      "medium, paper or fine", **fixed("level")))
         self.register_variable(String("scene", description="a built-in scene name or the "
-                                      "path of a scene TOML file", **fixed))
+                                      "path of a scene TOML file", **fixed("scene")))
         self.register_variable(Boolean("half_face", description="simulate x <= 0 with "
-                                       "u_x = 0 on the mid-sagittal plane", **fixed))
+                                       "u_x = 0 on the mid-sagittal plane",
+                                       **fixed("half_face")))
         self.register_variable(Real("tolerance", description="local error tolerance of a "
-                                    "substep", **fixed))
-        self.register_variable(Real("max_substep", description="largest substep", **fixed))
+                                    "substep", **fixed("tolerance")))
+        self.register_variable(Real("max_substep", description="largest substep",
+                                    **fixed("max_substep")))
         self.register_variable(String("fidelity", description="a preset: "
                                       + ", ".join(FIDELITIES + tuple(REDUCED))
                                       + " (reduced-order; trained per scene), or '' (the "
                                       "scene with level, half_face, tolerance, "
                                       "max_substep); where it is not set, a scene file "
                                       "that names a fidelity keeps its own",
-                                      setter=self._set_fidelity, **fixed))
+                                      **fixed("fidelity")))
         self.sim = None
         self.time = 0.0
         self._used = None
-        self._fidelity_set = False
 
-    def _set_fidelity(self, value):
-        self.fidelity, self._fidelity_set = value, True
+    def _set_parameter(self, name, value):
+        setattr(self, name, value)
+        self._set.add(name)
 
     def to_xml(self, model_options=dict()):
         return extend_model_description(super().to_xml(model_options))
@@ -144,18 +153,23 @@ class FaceFMU(Fmi2Slave):
             self.sim.release()
 
     def _overrides(self):
+        """Simulation's keyword overrides: the parameters the master has set (a scene
+        file's own values stand where it has not), and the fidelity's."""
         from solver.simulation import resolve_scene
         scene = resolve_scene(self.scene)
-        if scene.fidelity and not self._fidelity_set:
+        if scene.fidelity and "fidelity" not in self._set:
             self.fidelity = scene.fidelity          # the scene file's own choice
-        out = {"anatomy": str(self.anatomy)}
+        out = {"anatomy": str(self.anatomy)} if "anatomy" in self._set else {}
         if not self.fidelity:
-            out.update(level=str(self.level), half=bool(self.half_face),
-                       substep_tol=float(self.tolerance), max_substep=float(self.max_substep))
+            for name, key, kind in (("level", "level", str), ("half_face", "half", bool),
+                                    ("tolerance", "substep_tol", float),
+                                    ("max_substep", "max_substep", float)):
+                if name in self._set:
+                    out[key] = kind(getattr(self, name))
         else:
             fidelity_overrides(self.fidelity)      # ParameterError naming it and the allowed
-            for name, default in PRESET_PARAMETERS.items():
-                if getattr(self, name) != default:
+            for name in PRESET_PARAMETERS:
+                if name in self._set:
                     self.log(f"parameter {name} = {getattr(self, name)!r} not used: fidelity "
                              f"{self.fidelity!r} sets it", Fmi2Status.warning)
         if self.fidelity in REDUCED or scene.fidelity in REDUCED:

@@ -156,7 +156,7 @@ def _slave(**params):
     from facefmu.facefmu_slave import FaceFMU
     fmu = FaceFMU(instance_name="test")
     for k, v in params.items():
-        setattr(fmu, k, v)
+        fmu._set_parameter(k, v)                    # what a master's set call does
     return fmu
 
 
@@ -184,7 +184,7 @@ def test_fmu_fidelity_preset_sets_level_and_tolerances_and_warns_for_ignored_par
     assert default.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
 
 
-def test_fmu_keeps_a_scene_files_fidelity_unless_the_parameter_is_set(tmp_path):
+def test_fmu_keeps_a_scene_files_own_values_unless_the_parameter_is_set(tmp_path):
     scene = tmp_path / "fast.toml"
     scene.write_text('[scene]\nfidelity = "fast"\n[muscles]\ndriven = ["OOP"]\n')
     own = _slave(scene=str(scene))
@@ -192,10 +192,18 @@ def test_fmu_keeps_a_scene_files_fidelity_unless_the_parameter_is_set(tmp_path):
     assert own.fidelity == "fast"
     assert own.sim.scene.max_substep == PRESETS["fast"]["max_substep"]
     assert PRESETS["fast"]["max_substep"] != PRESETS["balanced"]["max_substep"]
-    chosen = _slave(scene=str(scene))
-    chosen._set_fidelity("balanced")                          # what a master's setString does
+    chosen = _slave(scene=str(scene), fidelity="balanced")
     chosen.exit_initialization_mode()
     assert chosen.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
+    paper = tmp_path / "paper.toml"
+    paper.write_text('[anatomy]\nlevel = "paper"\n[solver]\nsubstep_tol = 0.02\n'
+                     '[muscles]\ndriven = ["OOP"]\n')
+    kept = _slave(scene=str(paper), fidelity="")
+    kept.exit_initialization_mode()
+    assert (kept.sim.scene.level, kept.sim.scene.substep_tol) == ("paper", 0.02)
+    overridden = _slave(scene=str(paper), fidelity="", level="coarse", tolerance=5e-3)
+    overridden.exit_initialization_mode()
+    assert (overridden.sim.scene.level, overridden.sim.scene.substep_tol) == ("coarse", 5e-3)
 
 
 def test_fmu_unknown_fidelity_fails_initialization_with_a_logged_message():
