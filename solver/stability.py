@@ -343,11 +343,58 @@ def point_triangle_distance(p, a, b, c):
     return np.linalg.norm(p - q, axis=1)
 
 
+HEX_FACES = ((0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7))
+
+
+def brick_winding(xe, p):
+    """The winding number of the brick xe (8, 3) (ANSYS node order) around the point p
+    (3,): 1 inside, 0 outside; each face split into four triangles around its centroid
+    (the solid angles of Van Oosterom and Strackee)."""
+    total = 0.0
+    for f in HEX_FACES:
+        q = xe[list(f)] - p
+        c = q.mean(axis=0)
+        lc = np.linalg.norm(c)
+        for i in range(4):
+            a, b = q[i], q[(i + 1) % 4]
+            la, lb = np.linalg.norm(a), np.linalg.norm(b)
+            num = a @ np.cross(b, c)
+            den = la * lb * lc + (a @ b) * lc + (b @ c) * la + (c @ a) * lb
+            total += 2.0 * np.arctan2(num, den)
+    return total / (4.0 * np.pi)
+
+
+def inside_bricks(xe, p):
+    """(m,) whether each point p (m, 3) lies inside its brick xe (m, 8, 3): natural
+    coordinates within 1 - 1e-3 by Newton on the trilinear map; where Newton finds no
+    root (a residual above 1e-7 mm: it can stop, clipped, inside the box), the brick's
+    winding number decides (brick_winding)."""
+    from .element import shape_functions, shape_gradients
+    xi = np.zeros((len(p), 3))
+    ok = np.ones(len(p), dtype=bool)
+    for _ in range(25):
+        r = np.einsum("pa,pai->pi", shape_functions(xi), xe) - p
+        J = np.einsum("pai,paj->pij", xe, shape_gradients(xi))
+        ok &= np.abs(np.linalg.det(J)) > 1e-12
+        J[~ok] = np.eye(3)
+        step = np.linalg.solve(J, -r[..., None])[..., 0]
+        xi = np.clip(xi + step, -3.0, 3.0)
+        if np.abs(step[ok]).max(initial=0.0) < 1e-10:
+            break
+    r = np.einsum("pa,pai->pi", shape_functions(xi), xe) - p
+    solved = ok & (np.linalg.norm(r, axis=1) < 1e-7)
+    hit = solved & np.all(np.abs(xi) < 1.0 - 1e-3, axis=1)
+    for k in np.flatnonzero(~solved):
+        hit[k] = brick_winding(xe[k], p[k]) > 0.5
+    return hit
+
+
 class Probe:
     """Interpenetration of any state, measured outside every model.
 
     Lips: a node of a lip contact surface that lies inside a brick it does not belong to
-    (natural coordinates within 1 - 1e-3, by Newton on the trilinear map) has entered
+    (natural coordinates within 1 - 1e-3, by Newton on the trilinear map; where Newton
+    finds no root, the brick's winding number around the node) has entered
     tissue (the other lip, or its own lip folded over); its depth is its distance to the
     nearest lip-surface triangle it is not a corner of. This sees what a contact term
     cannot: a node passing through triangles outside its candidate pairs. Teeth: the
@@ -388,20 +435,7 @@ class Probe:
         ni, be = np.nonzero(near)
         if not len(ni):
             return 0.0
-        from .element import shape_functions, shape_gradients
-        xe, target = xb[be], p[ni]
-        xi = np.zeros((len(ni), 3))
-        ok = np.ones(len(ni), dtype=bool)
-        for _ in range(25):
-            r = np.einsum("pa,pai->pi", shape_functions(xi), xe) - target
-            J = np.einsum("pai,paj->pij", xe, shape_gradients(xi))
-            ok &= np.abs(np.linalg.det(J)) > 1e-12
-            J[~ok] = np.eye(3)
-            step = np.linalg.solve(J, -r[..., None])[..., 0]
-            xi = np.clip(xi + step, -3.0, 3.0)
-            if np.abs(step[ok]).max(initial=0.0) < 1e-10:
-                break
-        hit = ok & np.all(np.abs(xi) < 1.0 - 1e-3, axis=1)
+        hit = inside_bricks(xb[be], p[ni])
         worst = 0.0
         for k in np.flatnonzero(hit):
             node = int(self.nodes[ni[k]])

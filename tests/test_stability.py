@@ -179,6 +179,30 @@ def test_point_triangle_distance_against_sampling(rng):
         assert np.all(d <= sampled + 1e-12) and np.all(sampled - d < 0.1)
 
 
+def test_probe_sees_a_node_inside_a_brick_only_where_it_is(rng):
+    """A lip-corner node beside a distorted upper-lip brick (generic coarse face, a
+    random switching case at t = 0.18 s): Newton on the trilinear map, started at the
+    brick's centre and clipped, stops inside the reference cube 6.3 mm from the node
+    (no root: the node is outside, winding number 0); the probe once counted it as
+    2.57 mm deep. The brick's own points and its centroid are inside; points pushed out
+    of a face are not."""
+    xe = np.array([[-23.590648, 66.144179, -75.889161], [-29.521359, 61.038840, -79.410620],
+                   [-29.043463, 62.883414, -70.480779], [-22.938065, 67.011399, -70.941655],
+                   [-25.388475, 69.391507, -74.702269], [-30.443369, 65.430584, -78.291924],
+                   [-31.737259, 65.983543, -70.814725], [-25.255244, 70.686230, -70.784244]])
+    node = np.array([-23.802414, 69.482746, -79.396306])
+    assert S.brick_winding(xe, node) == pytest.approx(0.0, abs=1e-9)
+    assert not S.inside_bricks(xe[None], node[None])[0]
+    from solver.element import shape_functions
+    xi = rng.uniform(-0.9, 0.9, (50, 3))
+    pts = np.einsum("pa,ai->pi", shape_functions(xi), xe)
+    assert S.inside_bricks(np.repeat(xe[None], 50, axis=0), pts).all()
+    assert S.brick_winding(xe, xe.mean(axis=0)) == pytest.approx(1.0)
+    outside = np.einsum("pa,ai->pi", shape_functions(np.column_stack(
+        [np.full(50, 1.2), xi[:, 1:]])), xe)                   # beyond the face xi = 1
+    assert not S.inside_bricks(np.repeat(xe[None], 50, axis=0), outside).any()
+
+
 def test_a_refused_step_that_changes_the_state_is_caught(monkeypatch):
     def broken_step(self, t_end):
         self.face.model.u = self.face.u + 1e-3           # a silently wrong "refusal"

@@ -25,8 +25,8 @@ edge or vertex of an open surface has no side: such a node is out of contact on 
 master; on a deformable one (and beyond an edge of a slave's candidate set) its penalty
 fades out beyond the edge (boundary_penalty: psi(a) phi(l / L) with the depth a behind
 the nearest triangle's plane and the distance l beyond it, C1 where it meets the face;
-on a deformable master its gradient over all four nodes by complex steps and its Hessian
-by central differences of that gradient: faded_pair).
+on a deformable master with that plane's normal held fixed in the force, faded_pair;
+in a rim vertex's region with a normal blended over the vertex's fan, vertex_pair).
 
 Penalty. With the penetration p = -g (signed: negative outside), psi(p) is k p^2 / 2 =
 k F for p >= 0 (pure penalty; a touching node, p = 0, carries the stiffness k hess F but no
@@ -342,17 +342,11 @@ def _law_c(p, k, smooth):
 
 
 @njit(cache=True)
-def _faded_energy(X, region, k, smooth, fade):
+def _faded_energy(X, region, m, k, smooth, fade):
     """boundary_penalty's E = psi(a) phi(l / fade) of the slave X[0] beyond the edge or
-    vertex region of the triangle X[1:4] (complex (4, 3)), with m the triangle's face
-    normal and d = X[0] - c, c the closest point of the region's feature (its formula held
-    fixed: the derivatives within the region)."""
-    e1, e2 = X[2] - X[1], X[3] - X[1]
-    n = np.empty(3, dtype=np.complex128)
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1]
-    n[1] = e1[2] * e2[0] - e1[0] * e2[2]
-    n[2] = e1[0] * e2[1] - e1[1] * e2[0]
-    m = n / np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    vertex region of the triangle X[1:4] (complex (4, 3)), with the normal m (3,) held
+    fixed (the triangle's face normal at the real X) and d = X[0] - c, c the closest point
+    of the region's feature (its formula held fixed: the derivatives within the region)."""
     if region < VERTEX:
         xi, xj = X[1 + region - EDGE], X[1 + (region - EDGE + 1) % 3]
         e = xj - xi
@@ -371,17 +365,25 @@ def _faded_energy(X, region, k, smooth, fade):
 
 
 @njit(cache=True)
+def _face_normal(X):
+    """Unit normal of the triangle X[1:4] (real (4, 3))."""
+    n = np.cross(X[2] - X[1], X[3] - X[1])
+    return n / np.sqrt(n @ n)
+
+
+@njit(cache=True)
 def _faded_gradient(X, region, k, smooth, fade, Xc, g):
-    """g (12,) = dE/dX of _faded_energy at the real X (4, 3) by complex steps (exact to
-    rounding); Xc (4, 3) complex work space."""
+    """g (12,) = dE/dX of _faded_energy at the real X (4, 3) by complex steps, with the
+    triangle's normal at X held fixed; Xc (4, 3) complex work space."""
     h = 1e-30
+    m = _face_normal(X)
     for a in range(4):
         for i in range(3):
             Xc[a, i] = X[a, i]
     for r in range(12):
         a, i = r // 3, r % 3
         Xc[a, i] = X[a, i] + 1j * h
-        g[r] = _faded_energy(Xc, region, k, smooth, fade).imag / h
+        g[r] = _faded_energy(Xc, region, m, k, smooth, fade).imag / h
         Xc[a, i] = X[a, i]
 
 
@@ -390,12 +392,13 @@ FADED_STEP = 1e-6       # mm: central differences of the exact gradient for the 
 
 @njit(cache=True)
 def faded_pair(xs, xm, region, k, smooth, fade, need_k, fe, ke):
-    """The faded penalty of a slave xs (3,) beyond a free edge or vertex (region) of the
-    deformable triangle xm (3, 3) with its face normal: fe (12,) its exact gradient over
-    (slave, x_1, x_2, x_3), the master's rotation (m turning) and the closest point's
-    sliding included (complex steps), and when need_k ke (12, 12) its Hessian (central
-    differences of that gradient over FADED_STEP, symmetrized). The energy is invariant
-    under rigid motions, so the forces balance in force and moment."""
+    """The faded penalty of a slave xs (3,) beyond a free edge (region) of the deformable
+    triangle xm (3, 3): fe (12,) the force over (slave, x_1, x_2, x_3), the gradient of E
+    with the face normal held fixed (the closest point's sliding included, by complex
+    steps), and when need_k ke (12, 12) its derivative (central differences over
+    FADED_STEP, the normal's turn included), symmetrized. Holding the normal makes the
+    force continuous where the region meets a free vertex's (vertex_pair), whose normal
+    blends those of several triangles."""
     X = np.empty((4, 3))
     X[0] = xs
     X[1:] = xm
@@ -417,6 +420,140 @@ def faded_pair(xs, xm, region, k, smooth, fade, need_k, fe, ke):
         for c in range(r + 1, 12):
             v = 0.5 * (ke[r, c] + ke[c, r])
             ke[r, c] = ke[c, r] = v
+
+
+@njit(cache=True)
+def vertex_fan(v, x, tris, cand, pair_free, p0, fn, ehat, nrm, free):
+    """The slave's candidate edges at vertex v: unit directions ehat (K, 3) from v,
+    whether each is free for the slave (free (K,): it borders no other candidate, or the
+    surface's rim) and, for a free one, its triangle's face normal nrm (K, 3); candidates
+    cand (k,) with pair_free rows p0 + j. Returns (K, the number of free edges)."""
+    K, nf = 0, 0
+    for j in range(cand.shape[0]):
+        t = cand[j]
+        for a in range(3):
+            if tris[t, a] != v:
+                continue
+            for e, o in ((a, tris[t, (a + 1) % 3]), ((a + 2) % 3, tris[t, (a + 2) % 3])):
+                dv = x[o] - x[v]
+                ehat[K] = dv / np.sqrt(dv @ dv)
+                free[K] = pair_free[p0 + j, e]
+                nrm[K] = fn[t]
+                nf += free[K]
+                K += 1
+    return K, nf
+
+
+ALIGN_LO, ALIGN_HI = 0.3, 0.6    # |cos| of d to the vertex normal: where a vertex's law
+                                # turns from the rim's plane to the plain distance
+
+
+@njit(cache=True)
+def _vertex_energy(d, ehat, nrm, free, K, vn, k, smooth, fade):
+    """The lip law in the region of a free vertex v: d = x - v (complex (3,)), the fan of
+    vertex_fan and the vertex normal vn (3,) held fixed. With alpha_q = -d . ehat_q >= 0
+    (the distance from the plane where the region meets edge q's),
+
+        E = psi(a) phi(l / fade),  a = -m . d,  l = |d + a m|,
+        m ~ sum_free n_q / alpha_q^2 + c u sum_inner 1 / alpha_q^2,
+
+    u = -sgn d / |d| (sgn = +1 behind vn: inside), c = smoothstep of |d . vn| / |d| over
+    [ALIGN_LO, ALIGN_HI]. Where the region meets a free edge's (alpha_q -> 0), m -> n_q:
+    that edge's faded law; where it meets an inner edge's, m -> u, so a -> sgn |d| and
+    l -> 0: the plain law psi(sgn |d|) of that edge's end; the weights turn m with zero
+    slope there, so E is C1 across every boundary of the region. c keeps the plain
+    distance out where d runs along the surface (a point beyond a rim's corner, or where
+    the side test flips), which no inner edge's region reaches.
+    Returns (E, the reported depth a phi)."""
+    dist = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    side = d[0] * vn[0] + d[1] * vn[1] + d[2] * vn[2]
+    sgn = 1.0 if side.real <= 0.0 else -1.0
+    cosv = sgn * -side / dist
+    t = (cosv - ALIGN_LO) / (ALIGN_HI - ALIGN_LO)
+    if t.real <= 0.0:
+        c = 0.0 * t
+    elif t.real >= 1.0:
+        c = 1.0 + 0.0 * t
+    else:
+        c = t * t * (3.0 - 2.0 * t)
+    m = np.zeros(3, dtype=np.complex128)
+    wi = 0.0 * dist
+    hit = -1
+    for q in range(K):
+        al = -(d[0] * ehat[q, 0] + d[1] * ehat[q, 1] + d[2] * ehat[q, 2])
+        if al.real <= 1e-14 * dist.real:
+            if free[q] or c.real > 0.0:
+                hit = q
+            continue
+        if free[q]:
+            for i in range(3):
+                m[i] += nrm[q, i] / (al * al)
+        else:
+            wi += 1.0 / (al * al)
+    if hit >= 0 and free[hit]:
+        for i in range(3):
+            m[i] = nrm[hit, i] + 0.0 * dist
+    elif hit >= 0:
+        m = -sgn * d / dist
+    else:
+        m = m - (c * wi * sgn / dist) * d
+    m = m / np.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    a = -(m[0] * d[0] + m[1] * d[1] + m[2] * d[2])
+    dp = d + a * m
+    s = np.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2]) / fade
+    if s.real >= 1.0:
+        return 0.0 * a, 0.0 * a
+    phi = 1.0 - s * s * (3.0 - 2.0 * s)
+    return _law_c(a, k, smooth) * phi, a * phi
+
+
+@njit(cache=True)
+def _vertex_gradient(d, ehat, nrm, free, K, vn, k, smooth, fade, g):
+    """g (3,) = dE/dd of _vertex_energy at the real d (3,) by complex steps; returns (E,
+    the reported depth)."""
+    h = 1e-30
+    dc = np.empty(3, dtype=np.complex128)
+    for i in range(3):
+        dc[i] = d[i]
+    e, depth = _vertex_energy(dc, ehat, nrm, free, K, vn, k, smooth, fade)
+    for i in range(3):
+        dc[i] = d[i] + 1j * h
+        g[i] = _vertex_energy(dc, ehat, nrm, free, K, vn, k, smooth, fade)[0].imag / h
+        dc[i] = d[i]
+    return e.real, depth.real
+
+
+@njit(cache=True)
+def vertex_pair(d, av, ehat, nrm, free, K, vn, k, smooth, fade, need_k, fe, ke):
+    """The lip law of a slave at d = x - v (3,) in the region of a free vertex v, the local
+    vertex av of the pair's triangle (_vertex_energy, the fan held fixed): fe (12,) the
+    force (dE/dd on the slave, -dE/dd on v), ke (12, 12) when need_k (central differences
+    of the gradient over d, symmetrized, on the slave and v). Returns (E, the depth)."""
+    g = np.empty(3)
+    e, depth = _vertex_gradient(d, ehat, nrm, free, K, vn, k, smooth, fade, g)
+    fe[:] = 0.0
+    b = 3 * (1 + av)
+    for i in range(3):
+        fe[i], fe[b + i] = g[i], -g[i]
+    if not need_k:
+        return e, depth
+    H = np.empty((3, 3))
+    gp, gm, dd = np.empty(3), np.empty(3), d.copy()
+    for c in range(3):
+        dd[c] = d[c] + FADED_STEP
+        _vertex_gradient(dd, ehat, nrm, free, K, vn, k, smooth, fade, gp)
+        dd[c] = d[c] - FADED_STEP
+        _vertex_gradient(dd, ehat, nrm, free, K, vn, k, smooth, fade, gm)
+        dd[c] = d[c]
+        for r in range(3):
+            H[r, c] = (gp[r] - gm[r]) / (2.0 * FADED_STEP)
+    ke[:, :] = 0.0
+    for r in range(3):
+        for c in range(3):
+            h = 0.5 * (H[r, c] + H[c, r])
+            ke[r, c], ke[b + r, b + c] = h, h
+            ke[r, b + c], ke[b + r, c] = -h, -h
+    return e, depth
 
 
 @njit(cache=True)
@@ -555,6 +692,11 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
     energy = 0.0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
     g, H, d = np.empty(3), np.empty((3, 3)), np.empty(3)
+    kmax = 0
+    for i in range(slaves.shape[0]):
+        kmax = max(kmax, ptr[i + 1] - ptr[i])
+    ehat, nrm = np.empty((2 * kmax, 3)), np.empty((2 * kmax, 3))
+    efree = np.empty(2 * kmax, dtype=np.bool_)
     for i in range(slaves.shape[0]):
         if active[i] >= 0:
             fe[active[i]] = 0.0
@@ -563,19 +705,44 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             kept[i] = -1
         gap[i], force[i], active[i] = np.inf, 0.0, -1
         xs = x[slaves[i]]
-        j, region, dist, sd, free, m = locate(xs, x, tris, pair_tri[ptr[i]:ptr[i + 1]], fn,
-                                              en, vn, free_edge, free_vertex, w, wt, xm)
-        if j < 0 or dist > depth:
+        cand = pair_tri[ptr[i]:ptr[i + 1]]
+        j, region, dist, sd, free, m = locate(xs, x, tris, cand, fn, en, vn, free_edge,
+                                              free_vertex, w, wt, xm)
+        if j < 0 or dist > depth + fade:
             gap[i] = dist
             continue
         p = ptr[i] + j
-        if pair_free is not None:
+        if region >= VERTEX and pair_free is not None and dist > 1e-12:
+            # a vertex: free when any of the slave's candidate edges at it is
+            v = tris[pair_tri[p], region - VERTEX]
+            K, nf = vertex_fan(v, x, tris, cand, pair_free, ptr[i], fn, ehat, nrm, efree)
+            if nf > 0 or free:
+                d[:] = xs - x[v]
+                if nf == 0:                       # a rim vertex of a candidate-free fan
+                    for q in range(K):
+                        efree[q] = True
+                psi, depth_i = vertex_pair(d, region - VERTEX, ehat, nrm, efree, K, vn[v],
+                                           k[i], smooth, fade, need_k, fe[p], ke[p])
+                if psi <= 0.0 or depth_i > depth:
+                    fe[p] = 0.0
+                    if need_k:
+                        ke[p] = 0.0
+                    gap[i] = dist
+                    continue
+                if need_k:
+                    kept[i] = p
+                f = fe[p, :3]
+                gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
+                energy += psi
+                continue
+            free = False
+        elif pair_free is not None and region != FACE:
             free = free or _pair_free(pair_free, p, region)
         if free:                       # the faded penalty on the triangle's plane
             d[:] = xs - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
             psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, False,
                                             g, H)
-            if psi <= 0.0:
+            if psi <= 0.0 or depth_i > depth:
                 gap[i] = dist
                 continue
             faded_pair(xs, xm, region, k[i], smooth, fade, need_k, fe[p], ke[p])
@@ -586,7 +753,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             energy += psi
             continue
         inside = sd <= 0.0
-        if not inside and dist >= smooth:
+        if (inside and dist > depth) or (not inside and dist >= smooth):
             gap[i] = dist
             continue
         gap[i], active[i] = (-dist if inside else dist), p

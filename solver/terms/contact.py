@@ -18,26 +18,31 @@ l = |d + a N| beyond the edge,
 
     Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
 
-psi the penalty law below and L = fade (1 mm). On the lips N is the face normal of the
-nearest triangle. At l = 0 this is the face's energy (d is along N there) and phi'(0) =
-0, so Psi is C1 across the edge; the reported gap is -a phi. On the lips Psi's gradient
-and Hessian are taken over the slave and the master's three nodes, the turning N and the
-closest point's sliding included (solver.kernels.contact.faded_pair): exact forces,
-which balance in moment, and an exact tangent. (Before, the master nodes took -w_a times
-the slave's force and the tangent left the master's motion out: on the reference face's
-gesture the lip contact's tangent was 8-12 % off its residual's derivative at t = 0.13 s
-(benchmarks/tangent_check.py), and Newton converged linearly there, at 0.67 per
-iteration with a new tangent at every iterate.) On the rigid teeth (RigidContact, fade
-0: released as before) N is the rim normal (solver.kernels.contact.rim_normal): the face
-normal beyond an edge, and beyond a free vertex a blend of the face normals of its two
-free edges' triangles by the point's place in the vertex's region, so that N is
-continuous all around the rim (its turn with the point is left out of the force, which
-stays continuous, and of the tangent). With the face normal of the nearest triangle at
-free vertices too (as on the lips) the force jumps where a node passes from an edge's
-region to a vertex's: a static BUC solve once hung there; with the teeth released, the
-reference face's static OOP + BUC stalled at lam = 0.483 where a lip node passed a free
-edge of a teeth sheet. Rigid surfaces that share a seam are joined
-into one term (joined_surfaces), so that a seam is an inner edge, not a rim.
+psi the penalty law below and L = fade (1 mm). At l = 0 this is the face's energy (d is
+along N there) and phi'(0) = 0, so Psi is C1 across the edge; the reported gap is
+-a phi.
+
+On the lips N is the face normal of the edge's triangle, held fixed in the force (the
+closest point's sliding included, solver.kernels.contact.faded_pair; the normal's turn is
+in the tangent only). In the region of a rim vertex v (a vertex with a free edge among
+the slave's candidates) the law is the same form with a normal blended from the fan at v
+(solver.kernels.contact.vertex_pair): with alpha_q the distance from the plane where the
+region meets edge q's,
+
+    N ~ sum_free n_q / alpha_q^2 + c u sum_inner 1 / alpha_q^2,    u = -sgn d / |d|,
+
+so that N is the free edge's face normal where the region meets that edge's, and u
+where it meets an inner edge's (there a = sgn |d| and l = 0: the plain law of the
+edge's end); c (0 to 1 by the alignment of d with the vertex normal) keeps the plain
+distance out where d runs along the surface, beyond a rim's corner. The force is
+continuous across every boundary between regions, except where the nearest triangle
+jumps across a medial axis; Newton stalls at a jump of the force. On the rigid teeth
+(RigidContact, fade 0: released) N is the rim normal (solver.kernels.contact.rim_normal):
+the face normal beyond an edge, and beyond a free vertex a blend of the face normals of
+its two free edges' triangles by the point's place in the vertex's region (its turn with
+the point is left out of the force, which stays continuous, and of the tangent). Rigid
+surfaces that share a seam are joined into one term (joined_surfaces), so that a seam is
+an inner edge, not a rim.
 
 Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
 below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
