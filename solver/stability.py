@@ -65,6 +65,7 @@ MEMORY_LIMIT_MB = 50.0      # resident memory growth allowed over a long run
 REST_TOLERANCE = 1e-9       # mm: at rest nothing moves
 EQUILIBRIUM_TOLERANCE = 0.01    # mm: a held activation ends this close to the static state
 PROBE_DEPTH = 5.0           # mm: deepest lip-into-teeth penetration the probe sees
+FACE_DIVISIONS = 16         # sub-quads per edge of a lip face, for the probe's depth
 
 
 # ------------------------------------------------------------------------------ cases
@@ -389,6 +390,18 @@ def inside_bricks(xe, p):
     return hit
 
 
+def face_sampling(n):
+    """A bilinear face sampled by n x n sub-quads: weights (g, 4) of the (n + 1)^2 grid
+    points over the face's corners, and the sub-quads' triangles (2 n^2, 3) over them."""
+    g = np.linspace(-1.0, 1.0, n + 1)
+    s, t = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    w = 0.25 * np.column_stack([(1 - s) * (1 - t), (1 + s) * (1 - t), (1 + s) * (1 + t),
+                                (1 - s) * (1 + t)])
+    k = np.arange(n + 1)[:, None] * (n + 1) + np.arange(n + 1)[None]
+    a, b, c, d = k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()
+    return w, np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+
+
 class Probe:
     """Interpenetration of any state, measured outside every model.
 
@@ -396,22 +409,25 @@ class Probe:
     (natural coordinates within 1 - 1e-3, by Newton on the trilinear map; where Newton
     finds no root, the brick's winding number around the node) has entered
     tissue (the other lip, or its own lip folded over); its depth is its distance to the
-    nearest lip-surface triangle it is not a corner of. This sees what a contact term
+    nearest lip-surface face it is not a corner of (the bilinear face, sampled by
+    FACE_DIVISIONS^2 sub-quads: within a few thousandths of its warp). This sees what a contact term
     cannot: a node passing through triangles outside its candidate pairs. Teeth: the
     signed distances to the rigid teeth sheets of the nodes the model's teeth contact
     would hold (solver.terms.contact.build_contact_terms), by RigidContact terms that are
     in no model and search PROBE_DEPTH mm deep."""
 
     def __init__(self, anatomy, depth=PROBE_DEPTH):
-        from .terms.contact import build_contact_terms, triangulate
+        from .terms.contact import build_contact_terms
         mesh = anatomy.mesh
         self.mesh = mesh
         surf = anatomy.contact_surfaces
         faces = [f for k, f in surf.items() if k in ("upper_lip", "lower_lip")]
         self.nodes = np.unique(np.concatenate([f.ravel() for f in faces])) if faces else \
             np.zeros(0, dtype=np.int64)
-        self.tris = np.vstack([triangulate(f) for f in faces]) if faces else \
-            np.zeros((0, 3), dtype=np.int64)
+        quads = [np.asarray(f) if np.asarray(f).shape[1] == 4 else
+                 np.asarray(f)[:, [0, 1, 2, 2]] for f in faces]
+        self.faces = np.vstack(quads) if faces else np.zeros((0, 4), dtype=np.int64)
+        self._w, self._sub = face_sampling(FACE_DIVISIONS)
         self.teeth = []
         if anatomy.rigid_surfaces and surf:
             self.teeth = build_contact_terms(anatomy, lips=False, teeth=True,
@@ -439,13 +455,26 @@ class Probe:
         worst = 0.0
         for k in np.flatnonzero(hit):
             node = int(self.nodes[ni[k]])
-            other = ~(self.tris == node).any(axis=1)
-            t = self.tris[other]
-            depth = float(point_triangle_distance(x[node], x[t[:, 0]], x[t[:, 1]],
-                                                  x[t[:, 2]]).min())
+            depth = self.face_distance(x, node)
             self.inside.append((node, int(be[k]), depth))
             worst = max(worst, depth)
         return worst
+
+    def face_distance(self, x, node):
+        """The distance (mm) of node to the lip surfaces' bilinear faces it is not a
+        corner of, at positions x (n, 3) (each face sampled by FACE_DIVISIONS^2
+        sub-quads, two triangles each); only faces whose corners come within the
+        nearest corner's distance plus the face's size are sampled."""
+        f = self.faces[~(self.faces == node).any(axis=1)]
+        xf = x[f]                                                      # (f, 4, 3)
+        size = np.linalg.norm(xf - xf.mean(axis=1)[:, None], axis=2).max(axis=1)
+        corner = np.linalg.norm(xf - x[node], axis=2).min(axis=1)
+        f, xf = f[corner - size <= (corner + size).min()], xf[corner - size <= (corner + size).min()]
+        pts = np.einsum("ga,fai->fgi", self._w, xf)                   # (f, g, 3)
+        tri = pts[:, self._sub].reshape(-1, 3, 3)
+        area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        tri = tri[area > 1e-12]                         # a degenerate quad's collapsed rows
+        return float(point_triangle_distance(x[node], tri[:, 0], tri[:, 1], tri[:, 2]).min())
 
     def teeth_penetration(self, u):
         """The deepest lip-into-teeth penetration (mm, >= 0)."""

@@ -592,7 +592,7 @@ def test_faded_lip_penalty_has_consistent_derivatives_over_the_masters(rng, smoo
     asm = run(u)
     K, r = asm.matrix().toarray(), asm.residual.copy()
     q = term.passes[0]
-    x = mesh.nodes + u
+    x = term.positions(u)
     act = q["active"][q["active"] >= 0]
     w = np.empty(3)
     regions = [nearest(x[q["nodes"][p, 0]], x, term.normals[1].tris, q["pair_tri"][p:p + 1],

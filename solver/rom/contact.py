@@ -36,6 +36,7 @@ import numpy as np
 from ..assembly import block_dofs
 from ..kernels.contact import rigid_contact, surface_contact, surface_normals
 from ..terms.base import State
+from ..terms.contact import pair_maps
 from .contact_kernels import (fill_positions, mirror_normals, project_pairs, project_slaves,
                               short_lists, slave_positions)
 from .online_kernels import project_nodal
@@ -107,7 +108,9 @@ class _Lip:
                 "p": p, "nrm": nrm, "mirror": (nrm._me[0].astype(np.int64),
                                                nrm._me[1].astype(np.int64),
                                                np.asarray(nrm._mv, dtype=np.int64)),
-                "Vb": np.ascontiguousarray(Vn[nodes].reshape(npair, 12, -1)),
+                # the basis rows of the kernel's dofs (slave, triangle vertices)
+                "Vb": np.ascontiguousarray(pair_maps(p["pair_weights"])
+                                           @ Vn[nodes].reshape(npair, 15, -1)),
                 "fe": np.zeros((npair, 12)), "ke": np.zeros((npair, 12, 12)),
                 "active": -np.ones(len(p["slaves"]), dtype=np.int64),
                 "kept": -np.ones(len(p["slaves"]), dtype=np.int64),
@@ -118,16 +121,22 @@ class _Lip:
                           ((None, float(term.fade)) if hasattr(term, "fade") else ()))})
         self.kv = np.zeros((12, Vn.shape[2]))
         self._f0 = np.zeros(Vn.shape[2])
+        self.n = len(Vn)
+        self.xe = np.zeros((self.n + len(term.centres), 3))    # with the quads' centres
 
     def nodes(self):
         # pair nodes and every node of the master surfaces (their edge and vertex
-        # pseudo-normals involve the neighbouring triangles)
+        # pseudo-normals involve the neighbouring triangles), the quads' corners
+        real = [t[t < self.n] for t in (np.asarray(n.tris).ravel() for n in self.term.normals)]
         return np.concatenate([np.asarray(p["p"]["nodes"]).ravel() for p in self.passes]
-                              + [np.asarray(n.tris).ravel() for n in self.term.normals])
+                              + real + [np.asarray(self.term.centres).ravel()])
 
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
         total, sig = 0.0, 0
+        self.xe[:self.n] = x
+        self.xe[self.n:] = x[t.centres].mean(axis=1)
+        x = self.xe
         for w in self.passes:
             p, nrm = w["p"], w["nrm"]
             # nrm.update(x), the mirror part in numba

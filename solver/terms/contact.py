@@ -113,32 +113,30 @@ took 110 Newton iterations (13 with it; docs/dev-notes/fast_path.md). LipContact
 no offset: neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
-and the reverse; quads split into two triangles). The sparsity pattern is built once, so
-the candidate (slave node, master triangle) pairs are fixed at rest: master triangles
-within radius of the slave that face it (normals opposed: some face of the slave at that
-node has n . the triangle's normal < 0, so that a node on an edge of its lip, e.g. where
-the slit meets the inner face, also sees the other lip's inner face that it may wrap
-around; and the slave in front of the triangle's plane),
-which keeps the backs and the filled caps of closed lip surfaces out; at most max_pairs
-(24) nearest per slave. A slave's candidates are a patch of the other lip whose edges it
-sees as free (below): with 12, a lip slave of the reference face's gesture slid to a
-vertex on its patch's edge at t = 0.18 s, where its nearest triangle switched between
-faded regions with their own normals, a jump in force with no equilibrium (four to ten
-cutbacks per run; with the exact faded derivatives the step at t = 0.184 s failed after
-every cutback), though the lip goes on beyond it; 24 keeps the slaves inside their
-patches (benchmarks/fast_path.py, docs/dev-notes/fast_path.md). Nodes on both surfaces (the joined
-mouth corners) are no slaves, and a slave inside the other lip at rest by more than
-rest_tolerance is dropped. Each slave takes its nearest candidate; penetrations deeper
-than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a node that came in
-elsewhere than through its candidates. An edge of a slave's candidate triangles whose
-other face is no candidate of that slave (the facing test drops the far side of the
-lip's rim) is free for that slave: beyond it the pseudo-normal's sign test is
-meaningless (the paper-level OOP + RIS gesture stalled at t = 0.151 s with a slave 0.009
-mm from such an edge whose gap flipped between +0.009 and -0.009 mm, d perpendicular to
-the edge's pseudo-normal), so the penalty fades there as beyond a free edge. Only the
-active pairs are scattered. On a half model the lip surfaces end on the symmetry plane:
-their edges there are mirror edges, whose pseudo-normals include the mirrored surface,
-not free edges.
+and the reverse). Each quad of a lip surface is split into four triangles around its
+centre, a virtual vertex at the mean of its corners (centred_triangles): the triangles
+stay within about an eighth of the quad's warp of its bilinear face (the element's own
+boundary), where a split along one diagonal leaves up to half of it on one side. A pair's
+block holds the slave and the quad's four nodes; the kernel works on the triangle's
+vertices, mapped to those nodes linearly (pair_maps). The sparsity pattern is built
+once, so the candidate (slave node, master triangle) pairs are fixed at rest: master
+triangles within radius of the slave that face it (normals opposed: some face of the
+slave at that node has n . the triangle's normal < 0, so that a node on an edge of its
+lip, e.g. where the slit meets the inner face, also sees the other lip's inner face that
+it may wrap around; and the slave in front of the triangle's plane), which keeps the
+backs and the filled caps of closed lip surfaces out; at most max_pairs (48) nearest per
+slave: a patch of the other lip large enough that the slaves stay inside it. Nodes on
+both surfaces (the joined mouth corners) are no slaves, and a slave inside the other lip
+at rest by more than rest_tolerance is dropped. Each slave takes its nearest candidate;
+penetrations deeper than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a
+node that came in elsewhere than through its candidates. An edge of a slave's candidate
+triangles whose other face is no candidate of that slave (the facing test drops the far
+side of the lip's rim) is free for that slave: beyond it the pseudo-normal's sign test is
+meaningless (d perpendicular to the edge's pseudo-normal flips the sign of the gap), so
+the penalty fades there as beyond a free edge, and around such an edge's vertices by the
+rim vertex law above. Only the active pairs are scattered. On a half model the lip
+surfaces end on the symmetry plane: their edges there are mirror edges, whose
+pseudo-normals include the mirrored surface, not free edges.
 
 After each assembly both terms hold: gap (s,) signed gaps of their slaves (inf: no
 candidate or a free boundary), force (s,) the slaves' normal contact forces (N), n_active,
@@ -170,6 +168,38 @@ def triangulate(faces):
                                                         faces[:, [0, 2, 3]]])
     keep = (tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) & (tris[:, 2] != tris[:, 0])
     return np.ascontiguousarray(tris[keep])
+
+
+def centred_triangles(faces, first):
+    """Quads (f, 4) split into four triangles around their centre point, a virtual vertex
+    (ids first, first + 1, ...: the mean of the quad's four nodes); degenerate quads
+    (a repeated node) and (f, 3) faces stay triangles. Unlike a split along one diagonal,
+    the four triangles stay within half the warp of the quad's bilinear face on both
+    sides. Returns (tris (t, 3), centres (c, 4) the nodes of each virtual vertex, corners
+    (t, 4) the real nodes a triangle's vertices are made of, weights (t, 3, 4): vertex a
+    of triangle t = sum_b weights[t, a, b] x[corners[t, b]])."""
+    faces = np.asarray(faces, dtype=np.int64)
+    if faces.shape[1] == 3:
+        faces = np.column_stack([faces, faces[:, 2]])
+    distinct = ((faces[:, [0, 1, 2, 3, 0, 1]] != faces[:, [1, 2, 3, 0, 2, 3]]).all(axis=1))
+    quads, rest = faces[distinct], faces[~distinct]
+    tris, corners, weights = [], [], []
+    z = first + np.arange(len(quads))
+    eye = np.eye(4)
+    for j in range(4):
+        tris.append(np.column_stack([quads[:, j], quads[:, (j + 1) % 4], z]))
+        corners.append(quads)
+        w = np.stack([eye[j], eye[(j + 1) % 4], np.full(4, 0.25)])
+        weights.append(np.broadcast_to(w, (len(quads), 3, 4)))
+    for f in rest:                              # a triangle (a quad with a node repeated)
+        u = [v for i, v in enumerate(f) if v not in f[:i]]
+        if len(u) == 3:
+            tris.append(np.array([u]))
+            corners.append(np.array([u + [u[2]]]))
+            weights.append(np.array([[eye[0], eye[1], eye[2]]]))
+    return (np.ascontiguousarray(np.vstack(tris)), quads,
+            np.ascontiguousarray(np.vstack(corners)),
+            np.ascontiguousarray(np.concatenate(weights)))
 
 
 def tributary_areas(x, faces, n):
@@ -535,7 +565,7 @@ class LipContact(_Report, Term):
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
-                 radius=6.0, max_pairs=24, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
+                 radius=6.0, max_pairs=48, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
                  mirror_nodes=None, fade=EDGE_FADE):
         _check(penalty, smoothing)
         if not fade > 0:
@@ -548,13 +578,25 @@ class LipContact(_Report, Term):
         if mirror_nodes is not None:
             mirror = np.zeros(n, dtype=bool)
             mirror[np.asarray(mirror_nodes, dtype=np.int64)] = True
-        surf = [triangulate(upper_faces), triangulate(lower_faces)]
-        self.normals = [_Normals(t, n, mirror).update(mesh.nodes) for t in surf]
+        surf, centres, corners, weights = [], [], [], []
+        first = n
+        for faces in (upper_faces, lower_faces):
+            t, c, co, w = centred_triangles(faces, first)
+            surf.append(t)
+            centres.append(c)
+            corners.append(co)
+            weights.append(w)
+            first += len(c)
+        self.centres = np.vstack(centres)                     # (c, 4) virtual vertices
+        ext = None if mirror is None else np.concatenate([mirror, np.zeros(first - n, bool)])
+        x0 = self.positions(np.zeros((n, 3)))
+        self.normals = [_Normals(t, first, ext).update(x0) for t in surf]
         areas = [tributary_areas(mesh.nodes, f, n) for f in (upper_faces, lower_faces)]
+        real = [np.unique(np.asarray(f)) for f in (upper_faces, lower_faces)]
         self.passes, dropped = [], []
         for s, m in ((0, 1), (1, 0)):
-            slaves = np.setdiff1d(np.unique(surf[s]), np.unique(surf[m]))
-            slaves, ptr, pair_tri, pair_free, out = self._pairs(slaves, s, m, radius,
+            slaves = np.setdiff1d(real[s], real[m])
+            slaves, ptr, pair_tri, pair_free, out = self._pairs(x0, slaves, s, m, radius,
                                                                 max_pairs, rest_tolerance)
             dropped.append(out)
             p = len(pair_tri)
@@ -563,7 +605,10 @@ class LipContact(_Report, Term):
                 "slaves": slaves, "master": m, "ptr": ptr, "pair_tri": pair_tri,
                 "pair_free": pair_free,
                 "k": penalty * areas[s][slaves],
-                "nodes": np.column_stack([slaves[owner], surf[m][pair_tri]]),
+                # the pair's real nodes (slave, the 4 of its triangle's quad) and the
+                # triangle's vertices in terms of them (pair_weights (p, 3, 4))
+                "nodes": np.column_stack([slaves[owner], corners[m][pair_tri]]),
+                "pair_weights": np.ascontiguousarray(weights[m][pair_tri]),
                 "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
                 "active": -np.ones(len(slaves), dtype=np.int64),
                 "kept": -np.ones(len(slaves), dtype=np.int64)})
@@ -585,10 +630,16 @@ class LipContact(_Report, Term):
         """The number of candidate pairs (both passes)."""
         return sum(len(q["pair_tri"]) for q in self.passes)
 
-    def _pairs(self, slaves, s, m, radius, max_pairs, rest_tolerance):
-        """Candidate pairs at rest of slaves (nodes of surface s) on the triangles of
-        surface m: (kept slaves, ptr, pair triangles, dropped slaves)."""
-        x = self.mesh.nodes
+    def positions(self, u):
+        """(n + c, 3) the nodes' positions at displacements u (n, 3), then the virtual
+        centre vertices of the lip surfaces' quads (centred_triangles)."""
+        x = self.mesh.nodes + u
+        return np.vstack([x, x[self.centres].mean(axis=1)])
+
+    def _pairs(self, x, slaves, s, m, radius, max_pairs, rest_tolerance):
+        """Candidate pairs at rest (positions x (n + c, 3)) of slaves (nodes of surface s)
+        on the triangles of surface m: (kept slaves, ptr, pair triangles, pair_free,
+        dropped slaves)."""
         tris, fn = self.normals[m].tris, self.normals[m].fn
         cen = x[tris].mean(axis=1)
         reach = np.linalg.norm(x[tris] - cen[:, None], axis=2).max()
@@ -629,7 +680,7 @@ class LipContact(_Report, Term):
         return [q["nodes"] for q in self.passes]
 
     def assemble(self, state, asm, block_ids):
-        x = self.mesh.nodes + state.u
+        x = self.positions(state.u)
         nodal = np.zeros((self.mesh.n_nodes, 3))
         gaps, forces = [], []
         for q, b in zip(self.passes, block_ids):
@@ -640,18 +691,22 @@ class LipContact(_Report, Term):
                                           asm.need_k, q["fe"], q["ke"], gap, force,
                                           q["active"], q["kept"], q["pair_free"], self.fade)
             act = q["active"][q["active"] >= 0]
-            asm.add_block(b, q["fe"][act], q["ke"][act] if asm.need_k else None, rows=act)
-            np.add.at(nodal, q["nodes"][act], -q["fe"][act].reshape(-1, 4, 3))
+            T = pair_maps(q["pair_weights"][act])
+            Tt = T.transpose(0, 2, 1)
+            fe = (Tt @ q["fe"][act][:, :, None])[:, :, 0]
+            ke = Tt @ q["ke"][act] @ T if asm.need_k else None
+            asm.add_block(b, fe, ke, rows=act)
+            np.add.at(nodal, q["nodes"][act], -fe.reshape(-1, 5, 3))
             gaps.append(gap)
             forces.append(force)
         self._report(np.concatenate(gaps), np.concatenate(forces), nodal)
 
     def linear_gaps(self, u):
-        """As RigidContact.linear_gaps, both passes (dofs (s, 12) over the slave and its
-        nearest candidate triangle's nodes, v (s, 12))."""
+        """As RigidContact.linear_gaps, both passes (dofs (s, 15) over the slave and the
+        real nodes of its nearest candidate triangle's quad, v (s, 15))."""
         if self.smoothing > 0:
             return None
-        x = self.mesh.nodes + u
+        x = self.positions(u)
         out = []
         for q in self.passes:
             nrm = self.normals[q["master"]].update(x)
@@ -659,10 +714,21 @@ class LipContact(_Report, Term):
             p, v, pair = np.empty(s), np.empty((s, 12)), np.empty(s, dtype=np.int64)
             surface_linear_gaps(x, q["slaves"], nrm.tris, q["ptr"], q["pair_tri"], *nrm.args(),
                                 self.depth, q["pair_free"], p, v, pair)
-            nodes = q["nodes"][np.maximum(pair, 0)]
-            out.append((3 * np.repeat(nodes, 3, axis=1) + np.tile(np.arange(3), 4), v,
-                        q["k"], p))
+            at = np.maximum(pair, 0)
+            v = np.einsum("pij,pi->pj", pair_maps(q["pair_weights"][at]), v)
+            out.append((3 * np.repeat(q["nodes"][at], 3, axis=1) + np.tile(np.arange(3), 5),
+                        v, q["k"], p))
         return tuple(np.concatenate(a) for a in zip(*out))
+
+
+def pair_maps(weights):
+    """(p, 12, 15) T: the pair's 12 kernel dofs (slave, the triangle's 3 vertices) in
+    terms of its 15 real ones (slave, the quad's 4 nodes), from weights (p, 3, 4); a
+    force f over the kernel's dofs is T^T f over the real ones, a tangent T^T K T."""
+    T = np.zeros((len(weights), 12, 15))
+    T[:, :3, :3] = np.eye(3)
+    T[:, 3:, 3:] = np.einsum("pab,ij->paibj", weights, np.eye(3)).reshape(-1, 9, 12)
+    return T
 
 
 def joined_surfaces(surfaces, tol=1e-9):
