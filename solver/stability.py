@@ -201,6 +201,14 @@ def cases(full=False):
                     scene_dict("huge_steps", ("OOP", "BUC"), "ramp"),
                     [(0.1, dict(zip(("OOP", "BUC"), pattern[k % len(pattern)])))
                      for k in range(n)]))
+    # OOP + BUC + OOM held at 1 (lips pressed, cheeks drawn in): 100 ms steps, one 1 s step
+    held = {"OOP": 1.0, "BUC": 1.0, "OOM": 1.0}
+    n = 5 if full else 1
+    out.append(Case("pressed_100ms_steps", f"OOP + BUC + OOM held at 1, {n} steps of 100 ms",
+                    scene_dict("pressed_100ms_steps", tuple(held)), [(0.1, held)] * n))
+    if full:
+        out.append(Case("pressed_one_second_step", "OOP + BUC + OOM held at 1, one step of 1 s",
+                        scene_dict("pressed_one_second_step", tuple(held)), [(1.0, held)]))
     # many consecutive 1 ms steps at rest: no drift, no memory growth
     n = 10_000 if full else 500
     out.append(Case("rest_1ms_steps", f"{n} consecutive 1 ms steps at rest",

@@ -50,13 +50,10 @@ class Runner:
         return asm
 
 
-def fd_errors(term, u, h=1e-6, symmetric_part=False):
-    """Relative errors of the tangent against central differences of the residual (their
-    symmetric part if symmetric_part), and of the residual against central differences
-    of the energy, at u (n, 3)."""
-    run = Runner(term, len(u))
-    asm = run(u)
-    K, r = asm.matrix().toarray(), asm.residual
+def fd_derivatives(run, u, K, r, h=1e-6):
+    """Central differences at u (n, 3), over the dofs where the tangent K or the residual
+    r is nonzero, of the residual (Kfd) and of the energy (rfd) of the Runner run, which
+    is left at u."""
     Kfd, rfd = np.zeros_like(K), np.zeros_like(r)
     for j in np.flatnonzero(np.abs(K).sum(axis=0) + np.abs(r) > 0):
         up, um = u.ravel().copy(), u.ravel().copy()
@@ -66,6 +63,17 @@ def fd_errors(term, u, h=1e-6, symmetric_part=False):
         Kfd[:, j] = (ap.residual - am.residual) / (2 * h)
         rfd[j] = (ap.energy - am.energy) / (2 * h)
     run(u)
+    return Kfd, rfd
+
+
+def fd_errors(term, u, h=1e-6, symmetric_part=False):
+    """Relative errors of the tangent against central differences of the residual (their
+    symmetric part if symmetric_part), and of the residual against central differences
+    of the energy, at u (n, 3)."""
+    run = Runner(term, len(u))
+    asm = run(u)
+    K, r = asm.matrix().toarray(), asm.residual
+    Kfd, rfd = fd_derivatives(run, u, K, r, h)
     if symmetric_part:
         Kfd = 0.5 * (Kfd + Kfd.T)
     return np.abs(K - Kfd).max() / np.abs(K).max(), np.abs(r - rfd).max() / np.abs(r).max()
@@ -598,22 +606,13 @@ def test_faded_lip_penalty_has_consistent_derivatives_over_the_masters(rng, smoo
     regions = [nearest(x[q["nodes"][p, 0]], x, term.normals[1].tris, q["pair_tri"][p:p + 1],
                        w, np.empty(3))[1] for p in act]
     assert sum(r != FACE for r in regions) >= 3 and FACE in regions
-    h = 1e-6
-    Kfd, gfd = np.zeros_like(K), np.zeros_like(r)
     masters = np.concatenate([p["nodes"][p["active"][p["active"] >= 0], 1:].ravel()
                               for p in term.passes])
     only = np.setdiff1d(np.concatenate([p["nodes"][p["active"][p["active"] >= 0], 0]
                                         for p in term.passes]), masters)
     assert len(only) >= 5                    # slaves that are no active pair's master
     slave_dofs = (3 * only[:, None] + np.arange(3)).ravel()
-    for j in np.flatnonzero(np.abs(K).sum(axis=0) + np.abs(r) > 0):
-        up, um = u.ravel().copy(), u.ravel().copy()
-        up[j] += h
-        um[j] -= h
-        ap, am = run(up, False), run(um, False)
-        Kfd[:, j] = (ap.residual - am.residual) / (2 * h)
-        gfd[j] = (ap.energy - am.energy) / (2 * h)
-    run(u)
+    Kfd, gfd = fd_derivatives(run, u, K, r)
     on = np.isin(np.arange(len(r)), slave_dofs) & (np.abs(r) > 0)
     np.testing.assert_allclose(r[on], gfd[on], rtol=1e-5, atol=1e-6 * np.abs(r).max())
     Ksym = 0.5 * (Kfd + Kfd.T)
