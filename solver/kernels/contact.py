@@ -676,6 +676,16 @@ def _pair_free(pair_free, p, region):
 
 
 @njit(cache=True)
+def _activate(i, p, depth, need_k, fe, kept, gap, force, active):
+    """Slave i's pair p is active with a faded penetration depth (mm): its gap, force
+    (the norm of the slave's block of fe) and, with need_k, the pair whose ke is kept."""
+    if need_k:
+        kept[i] = p
+    f = fe[p, :3]
+    gap[i], force[i], active[i] = -depth, np.sqrt(f @ f), p
+
+
+@njit(cache=True)
 def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, free_vertex,
                     depth, smooth, need_k, fe, ke, gap, force, active, kept, pair_free=None,
                     fade=1.0):
@@ -729,10 +739,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
                         ke[p] = 0.0
                     gap[i] = dist
                     continue
-                if need_k:
-                    kept[i] = p
-                f = fe[p, :3]
-                gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
+                _activate(i, p, depth_i, need_k, fe, kept, gap, force, active)
                 energy += psi
                 continue
             free = False
@@ -746,10 +753,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
                 gap[i] = dist
                 continue
             faded_pair(xs, xm, region, k[i], smooth, fade, need_k, fe[p], ke[p])
-            if need_k:
-                kept[i] = p
-            f = fe[p, :3]
-            gap[i], force[i], active[i] = -depth_i, np.sqrt(f @ f), p
+            _activate(i, p, depth_i, need_k, fe, kept, gap, force, active)
             energy += psi
             continue
         inside = sd <= 0.0
