@@ -136,6 +136,35 @@ def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, smooth
     assert err_k < 1e-5 and err_r < 1e-5
 
 
+def test_centred_triangles_stay_within_an_eighth_of_a_warped_quads_face():
+    """A twisted quad z = h s t over the square [-1, 1]^2 (its diagonals' midpoints 2 h
+    apart: the warp): the four triangles around its centre (centred_triangles) stay
+    within warp / 8 of the bilinear face, a split along one diagonal within warp / 2;
+    the virtual centre is the corners' mean and each triangle's vertices are its weights
+    times the corners."""
+    from solver.terms.contact import centred_triangles
+    h = 0.3
+    corners = np.array([[-1.0, -1.0, h], [1.0, -1.0, -h], [1.0, 1.0, h], [-1.0, 1.0, -h]])
+    tris, centres, quad, weights = centred_triangles(np.array([[0, 1, 2, 3]]), 4)
+    x = np.vstack([corners, corners[centres].mean(axis=1)])
+    assert len(tris) == 4 and (tris[:, 2] == 4).all()
+    np.testing.assert_allclose(np.einsum("tab,tbi->tai", weights, corners[quad]), x[tris])
+
+    def deviation(triangles):
+        worst = 0.0
+        for a, b, c in x[triangles] if triangles.ndim == 2 else triangles:
+            for u in np.linspace(0.0, 1.0, 41):
+                for v in np.linspace(0.0, 1.0 - u, 41):
+                    p = u * a + v * b + (1.0 - u - v) * c
+                    worst = max(worst, abs(p[2] - h * p[0] * p[1]))
+        return worst
+
+    warp = 2 * h
+    assert deviation(tris) == pytest.approx(warp / 8, rel=1e-3)
+    split = np.array([[0, 1, 2], [0, 2, 3]])
+    assert deviation(split) == pytest.approx(warp / 2, rel=1e-3)
+
+
 def test_setting_the_penalty_scales_every_contact_force(rng):
     """The penalty knob (benchmarks/fast_path.py --set contact.penalty=P) rescales the
     stiffness of every slave, in both passes of the lips; the gaps stay."""
