@@ -38,6 +38,7 @@ from pythonfmu.default_experiment import DefaultExperiment
 
 from solver.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
 from solver.fidelity import FIDELITIES, REDUCED, fidelity_overrides
+from solver.jaw import JAW_INPUTS, JAW_RANGES, JAW_UNITS
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
@@ -50,6 +51,13 @@ OUTPUT_DESCRIPTIONS = {
     "lower_lip_protrusion": "forward displacement of the lower lip's front point from rest",
     "contact_force": "total normal contact force, lip on lip and lips/cheeks on the teeth "
                      "(0 where the scene has no contact)",
+    "incisor_opening": "distance the lower incisor point has moved from the upper one "
+                       "(0 with the jaw closed)",
+}
+JAW_DESCRIPTIONS = {
+    "jaw_opening": "jaw opening: rotation of the mandible about the TMJ axis (0 closed)",
+    "jaw_protrusion": "jaw protrusion: translation of the mandible along the occlusal "
+                      "plane, forward",
 }
 PARAMETERS = ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep",
               "fidelity")
@@ -76,6 +84,11 @@ class FaceFMU(Fmi2Slave):
             self.register_variable(Real(m, causality=Fmi2Causality.input,
                                         variability=Fmi2Variability.continuous,
                                         description=f"activation of {MUSCLE_FULL_NAMES[m]}"))
+        for name, text in JAW_DESCRIPTIONS.items():
+            setattr(self, name, 0.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous,
+                                        description=text))
         for name, text in OUTPUT_DESCRIPTIONS.items():
             setattr(self, name, 0.0)
             self.register_variable(Real(name, causality=Fmi2Causality.output,
@@ -201,6 +214,14 @@ class FaceFMU(Fmi2Slave):
             v = getattr(self, m)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
                 return f"input {m} = {v!r} is outside [0, 1]"
+        for name in JAW_INPUTS:
+            v = getattr(self, name)
+            lo, hi = JAW_RANGES[name]
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
+                return f"input {name} = {v!r} {JAW_UNITS[name]} is outside [{lo:g}, {hi:g}]"
+        if self.sim.face.jaw is None and (self.jaw_opening or self.jaw_protrusion):
+            return (f"inputs jaw_opening, jaw_protrusion must stay 0: the anatomy "
+                    f"{self.sim.anatomy.name!r} has no jaw")
         return None
 
     def do_step(self, current_time, step_size):
@@ -218,6 +239,8 @@ class FaceFMU(Fmi2Slave):
             self.log(f"inputs {', '.join(idle)} drive muscles that the scene "
                      f"'{self.scene}' does not build: ignored", Fmi2Status.warning)
         self.sim.set_activations(values)
+        if self.sim.face.jaw is not None:
+            self.sim.set_jaw(float(self.jaw_opening), float(self.jaw_protrusion))
         stats = self.sim.step(self.time + step_size)
         if not stats.converged:
             return self._refuse(f"step from t = {self.time} s refused: the solver did not "
@@ -238,7 +261,8 @@ class FaceFMU(Fmi2Slave):
     # -- state ---------------------------------------------------------------------------
     def _get_fmu_state(self):
         state = {name: getattr(self, name) for name in
-                 list(MUSCLE_NAMES) + list(OUTPUT_DESCRIPTIONS) + ["newton_iterations",
+                 list(MUSCLE_NAMES) + list(JAW_INPUTS) + list(OUTPUT_DESCRIPTIONS)
+                 + ["newton_iterations",
                                                                   "substeps", "cutbacks",
                                                                   "time"]}
         if self.sim is not None:

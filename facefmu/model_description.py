@@ -1,6 +1,6 @@
 """What pythonfmu's modelDescription.xml leaves out, added: units, bounds, dependencies.
 
-* UnitDefinitions for mm, s, N and the dimensionless "1"; unit, min and max on the variables;
+* UnitDefinitions for mm, s, N, deg and the dimensionless "1"; unit, min and max on the variables;
 * ModelStructure: every output declared with dependencies="" (outputs change only in
   doStep: no direct feedthrough), in Outputs and in InitialUnknowns;
 * needsExecutionTool="false" (the FMU runs in the importer's Python).
@@ -8,7 +8,10 @@
 
 from xml.etree.ElementTree import Element, SubElement
 
+from solver.jaw import JAW_RANGES, JAW_UNITS
+
 UNITS = {"mm": {"m": "1", "factor": "0.001"}, "s": {"s": "1"},
+         "deg": {"rad": "1", "factor": "0.017453292519943295"},
          "N": {"kg": "1", "m": "1", "s": "-2"}, "1": {}}
 
 # name -> attributes of the type element (Real, Integer)
@@ -21,6 +24,9 @@ ATTRIBUTES = {
     "upper_lip_protrusion": {"unit": "mm"},
     "lower_lip_protrusion": {"unit": "mm"},
     "contact_force": {"unit": "N", "min": "0"},
+    "incisor_opening": {"unit": "mm", "min": "0"},
+    **{name: {"unit": JAW_UNITS[name], "min": f"{lo:g}", "max": f"{hi:g}"}
+       for name, (lo, hi) in JAW_RANGES.items()},
     "newton_iterations": {"min": "0"},
     "substeps": {"min": "0"},
     "tolerance": {"unit": "mm", "min": "1e-12"},

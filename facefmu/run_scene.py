@@ -20,6 +20,11 @@ def add_arguments(parser):
     parser.add_argument("--anatomy", help="override the scene's anatomy ('generic' or a folder)")
     parser.add_argument("--level", help="override the scene's level")
     parser.add_argument("--full", action="store_true", help="simulate the full face")
+    parser.add_argument("--jaw-opening", type=float, metavar="DEG",
+                        help="hold the jaw open by DEG degrees (reached over the first "
+                             "output interval; replaces the scene's jaw schedules)")
+    parser.add_argument("--jaw-protrusion", type=float, metavar="MM",
+                        help="hold the jaw protruded by MM mm (likewise)")
     parser.add_argument("--vtu", action="store_true", help="write a VTU frame per record")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -29,6 +34,10 @@ def run(args):
     if args.full:
         overrides["half"] = False
     sim = Simulation(args.scene, **overrides)
+    held = {k: v for k, v in (("opening", args.jaw_opening),
+                              ("protrusion", args.jaw_protrusion)) if v is not None}
+    if held:
+        sim.scene = hold_jaw(sim.scene, held)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     name = sim.scene.name
@@ -57,6 +66,17 @@ def run(args):
     print(f"wrote {out / f'{name}.csv'}, {out / f'{name}.png'}"
           + (f" and {len(frames)} VTU frames" if frames else ""))
     return 0
+
+
+def hold_jaw(scene, held):
+    """The scene with its jaw schedules replaced by ramps to the held values (dict
+    'opening' | 'protrusion' -> value) over its first output interval."""
+    from solver.scene import parse_scene_schedule
+    keep = tuple(s for s in scene.schedules if not s.muscle.startswith("jaw_"))
+    ramps = tuple(parse_scene_schedule({"jaw": k, "kind": "ramp", "start": 0.0,
+                                        "end": scene.interval, "to": v}, scene)
+                  for k, v in held.items())
+    return scene.with_overrides(schedules=keep + ramps)
 
 
 def plot_run(rows, path, title):

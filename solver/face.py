@@ -6,8 +6,10 @@
     face.lip_outputs()                           # aperture, protrusion, width (mm)
 
 Boundary conditions: the anatomy's 'fixed' nodes (skull attachments) are held; on a half
-face, u_x = 0 on the 'midsagittal' nodes. Only the driven muscles' cables are built, and
-stiffening only covers their neighbourhoods.
+face, u_x = 0 on the 'midsagittal' nodes. Those of them on the mandible ('fixed_mandible')
+follow the jaw's prescribed rigid motion (solver.jaw; set_jaw), with the insertions of
+the muscles on the mandible. Only the driven muscles' cables are built, and stiffening
+only covers their neighbourhoods.
 """
 
 import numpy as np
@@ -16,6 +18,7 @@ from . import aperture
 from .activation import Activation
 from .anatomy.base import MUSCLE_NAMES
 from .errors import ParameterError
+from .jaw import Jaw, jaw_geometry
 from .materials import MooneyRivlin
 from .model import Model
 from .muscles import MuscleProperties
@@ -46,10 +49,17 @@ class FaceModel:
         if anatomy.half:
             self.model.fix(mesh.node_sets["midsagittal"], components=(0,))
         self.activation = Activation()
+        self.jaw = None
+        if "fixed_mandible" in mesh.node_sets and {"upper_teeth", "lower_teeth"} <= set(
+                anatomy.rigid_surfaces):
+            geometry = jaw_geometry(anatomy)
+            self.jaw = Jaw(geometry).bind(mesh.nodes[geometry.nodes])
+            self.model.add_motion(self.jaw)
         self.cables = None
         self.stiffening = None
         if self.muscles:
-            self.cables = Cables(anatomy, self.muscles, self.properties, self.activation)
+            self.cables = Cables(anatomy, self.muscles, self.properties, self.activation,
+                                 self.jaw)
             self.model.add_term(self.cables)
             if stiffening:
                 weights = muscle_weights(anatomy, self.regions,
@@ -104,12 +114,49 @@ class FaceModel:
                                      f"(driven: {', '.join(self.muscles) or 'none'})")
         self.activation.set(values)
 
+    def set_jaw(self, opening=None, protrusion=None):
+        """Target jaw opening (deg) and protrusion (mm) for the next solve (None keeps
+        one); out-of-range or non-finite values raise ParameterError, nothing changed."""
+        if self.jaw is None:
+            raise ParameterError(f"anatomy {self.anatomy.name!r} has no jaw (no "
+                                 "'fixed_mandible' node set or teeth surfaces)")
+        self.jaw.set(opening, protrusion)
+        self._prescribe_jaw()
+
+    def _prescribe_jaw(self):
+        """The mandible's prescribed displacements at the jaw's target pose."""
+        self.model.prescribe(self.jaw.geometry.nodes, self.jaw.displacement(self.jaw.target))
+
+    def end_step(self, converged):
+        """After a solve or a transient step: commit the jaw's target pose, or on failure
+        put the targets (activations, jaw) back to the last converged state."""
+        if converged:
+            if self.jaw is not None:
+                self.jaw.commit()
+            return
+        self.activation.target = self.activation.start.copy()
+        if self.jaw is not None and np.any(self.jaw.target != self.jaw.start):
+            self.jaw.target = self.jaw.start.copy()
+            self._prescribe_jaw()
+
+    def set_jaw_state(self, pose):
+        """Put the jaw at pose (opening, protrusion) as the converged state (set_state)."""
+        if self.jaw is None:
+            return
+        self.jaw.start = np.array(pose, dtype=float).reshape(2)
+        self.jaw.target = self.jaw.start.copy()
+        self._prescribe_jaw()
+
+    def incisor_opening(self):
+        """mm: how far the mandible's incisor point has moved (solver.jaw); 0 without a
+        jaw."""
+        return 0.0 if self.jaw is None else self.jaw.geometry.incisor_opening(self.jaw.start)
+
     def solve_static(self, steps=2, **kw):
-        """Load-stepped equilibrium at the target activations; on failure the
-        displacements and the activations stay at the last converged state."""
+        """Load-stepped equilibrium at the target activations and jaw pose; on failure
+        the displacements, the activations and the jaw stay at the last converged state."""
         res = self.model.solve_static(steps=steps, **kw)
-        if not res.converged:
-            self.activation.target = self.activation.start.copy()
+        self.end_step(res.converged)
         return res
 
     @property

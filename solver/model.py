@@ -81,6 +81,7 @@ class Model:
         self._system = None
         self.linear_solver = make_solver(linear_solver)
         self.newton_options = NewtonOptions()
+        self.motions = []                 # prescribed motions along the load path
 
     # -- boundary conditions -------------------------------------------------------------
     def fix(self, node_ids, components=(0, 1, 2)):
@@ -94,10 +95,11 @@ class Model:
         disp = np.broadcast_to(np.asarray(displacement, dtype=np.float64), (len(ids), 3))
         if not np.all(np.isfinite(disp)):
             raise ParameterError("prescribed displacement has a non-finite value")
-        for k, n in enumerate(ids):
-            for c in comps:
-                self._target[3 * int(n) + int(c)] = float(disp[k, c])
-        self._system = None if self._system is None else self._reconstrain()
+        dofs = (3 * ids[:, None] + comps[None, :]).ravel()
+        new = any(d not in self._target for d in dofs.tolist())
+        self._target.update(zip(dofs.tolist(), disp[:, comps].ravel().tolist()))
+        if new and self._system is not None:     # the set of prescribed DOFs changed
+            self._reconstrain()
 
     def release(self, node_ids, components=(0, 1, 2)):
         """Remove prescriptions from node_ids."""
@@ -105,6 +107,22 @@ class Model:
             for c in _components(components):
                 self._target.pop(3 * int(n) + int(c), None)
         self._system = None if self._system is None else self._reconstrain()
+
+    def add_motion(self, motion):
+        """A prescribed motion along the load path: motion.dofs (k,) (prescribed DOFs),
+        motion.dof_values(lam) (k,) mm and motion.moving (bool). Within a step its DOFs
+        follow dof_values(lam) where the other prescribed DOFs ramp linearly (a rigid
+        rotation stays rigid at every substep); at lam = 1 they must equal their targets."""
+        self.motions.append(motion)
+
+    def path_targets(self, pres, p_start, p_target, lam):
+        """(p,) the prescribed DOFs pres (p,) at load factor lam: from p_start to p_target
+        linearly, but for the moving motions' DOFs (add_motion)."""
+        targets = p_start + lam * (p_target - p_start)
+        for m in self.motions:
+            if m.moving:
+                targets[np.searchsorted(pres, m.dofs)] = m.dof_values(lam)
+        return targets
 
     def add_force(self, node_ids, force):
         """Add a dead nodal force (3,) or (k, 3) N on node_ids (applied at the next solve)."""
@@ -158,7 +176,7 @@ class Model:
         while lam < 1.0:
             lam_try = min(1.0, lam + dlam)
             sysm.lam = lam_try
-            targets = p_start + lam_try * (p_target - p_start)
+            targets = self.path_targets(pres, p_start, p_target, lam_try)
             u_new, r, rep = newton(sysm, u, targets, self.linear_solver, opts)
             res.iterations += rep.iterations
             res.steps.append({"lam": lam_try, "iterations": rep.iterations,

@@ -63,8 +63,12 @@ recorded outputs and, for standalone runs, activation schedules.
 tensile logarithmic principal strain over each driven muscle's region (its stiffening
 neighbourhood).
 
+A jaw schedule (`jaw = "opening"` or `jaw = "protrusion"`) drives the jaw's pose
+(solver.jaw) in its own unit and range (JAW_RANGES: opening 0 to 20 deg, protrusion -1 to
+10 mm); the jaw stays closed where there is none.
+
     [[schedule]]                    # standalone runs; activations are 0 where unset
-    muscle = "OOP"
+    muscle = "OOP"                  # or jaw = "opening" (deg) | "protrusion" (mm)
     kind = "ramp"                   # "step" | "ramp" | "pwl"
     start = 0.0                     # ramp: from `from` at start to `to` at end
     end = 0.1
@@ -87,6 +91,7 @@ import numpy as np
 from .anatomy.base import MUSCLE_NAMES
 from .errors import FaceFMUError
 from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
+from .jaw import JAW_RANGES
 from .linsolve import SOLVERS
 from .terms.contact import PENALTY
 
@@ -109,7 +114,8 @@ class SceneError(FaceFMUError, ValueError):
 
 @dataclass(frozen=True)
 class Schedule:
-    """An activation schedule of one muscle; value(t) in [0, 1]."""
+    """A schedule of one input: a muscle's activation (value(t) in [0, 1]) or a jaw
+    input ('jaw_opening' deg, 'jaw_protrusion' mm, in solver.jaw.JAW_RANGES)."""
 
     muscle: str
     kind: str
@@ -188,8 +194,13 @@ class Scene:
         """dict muscle -> activation at time t from the schedules (0 where unset)."""
         out = {m: 0.0 for m in self.driven}
         for s in self.schedules:
-            out[s.muscle] = s.value(t)
+            if s.muscle not in JAW_RANGES:
+                out[s.muscle] = s.value(t)
         return out
+
+    def jaw(self, t):
+        """dict jaw input -> value at time t from the jaw schedules ({} without any)."""
+        return {s.muscle: s.value(t) for s in self.schedules if s.muscle in JAW_RANGES}
 
     def with_overrides(self, **kw):
         return replace(self, **kw)
@@ -292,16 +303,22 @@ def _schedule(source, i, item, driven):
     key = f"schedule.{i}"
     if not isinstance(item, dict):
         raise SceneError(source, key, "must be a table")
-    allowed = {"muscle", "kind", "start", "end", "from", "to", "time", "value", "times",
-               "values"}
+    allowed = {"muscle", "jaw", "kind", "start", "end", "from", "to", "time", "value",
+               "times", "values"}
     unknown = set(item) - allowed
     if unknown:
         raise SceneError(source, f"{key}.{sorted(unknown)[0]}",
                          f"unknown key; allowed: {sorted(allowed)}")
     try:
-        muscle = _choice(driven)(item.get("muscle"))
+        if ("jaw" in item) == ("muscle" in item):
+            raise ValueError("give either muscle or jaw")
+        if "jaw" in item:
+            muscle = "jaw_" + _choice(tuple(k[4:] for k in JAW_RANGES))(item["jaw"])
+            unit = _number(*JAW_RANGES[muscle])
+        else:
+            muscle = _choice(driven)(item.get("muscle"))
+            unit = _number(0.0, 1.0)
         kind = _choice(SCHEDULE_KINDS)(item.get("kind"))
-        unit = _number(0.0, 1.0)
         if kind == "step":
             times, values = (_number(0.0)(item["time"]),), (0.0, unit(item["value"]))
         elif kind == "ramp":
@@ -319,6 +336,12 @@ def _schedule(source, i, item, driven):
     except (ValueError, TypeError) as exc:
         raise SceneError(source, key, str(exc)) from None
     return Schedule(muscle, kind, times, values)
+
+
+def parse_scene_schedule(item, scene, source="<command line>"):
+    """One Schedule from a [[schedule]] table (dict) for a Scene (its driven muscles);
+    SceneError naming the source and key where it cannot be used."""
+    return _schedule(source, len(scene.schedules), item, scene.driven)
 
 
 def parse_scene(data, source="<scene>"):

@@ -42,10 +42,10 @@ def resolve_scene(scene):
     return load_scene(scene)
 
 
-def _contact_terms(anatomy, scene):
+def _contact_terms(anatomy, scene, jaw=None):
     from .terms.contact import build_contact_terms
     return build_contact_terms(anatomy, lips=scene.lip_contact, teeth=scene.teeth_contact,
-                               lip_penalty=scene.lip_penalty)
+                               lip_penalty=scene.lip_penalty, jaw=jaw)
 
 
 class Simulation:
@@ -95,7 +95,7 @@ class Simulation:
                                    g=sc.g * 1e3))
         self.contact = []
         if sc.lip_contact or sc.teeth_contact:
-            self.contact = _contact_terms(self.anatomy, sc)
+            self.contact = _contact_terms(self.anatomy, sc, self.face.jaw)
             for term in self.contact:
                 model.add_term(term)
         if GRAVITY[sc.gravity] is not None:          # start from the rest state under gravity
@@ -117,6 +117,18 @@ class Simulation:
     def set_activations(self, values):
         self.face.set_activations(values)
 
+    def set_jaw(self, opening=None, protrusion=None):
+        """Target jaw opening (deg, about the TMJ axis) and protrusion (mm, along the
+        occlusal plane) for the next step (solver.jaw); None keeps one. Values outside
+        solver.jaw.JAW_RANGES raise ParameterError and change nothing."""
+        self.face.set_jaw(opening, protrusion)
+
+    @property
+    def jaw(self):
+        """(opening deg, protrusion mm) of the last converged state; (0, 0) without a jaw."""
+        j = self.face.jaw
+        return (0.0, 0.0) if j is None else (float(j.start[0]), float(j.start[1]))
+
     def step(self, t_end):
         """Advance to t_end (transient) or solve the equilibrium (static); StepStats."""
         if self.integrator is not None:
@@ -127,7 +139,7 @@ class Simulation:
                 # a substep at the full activations (hold "step") committed them before
                 # a later one failed: the state goes back to the call's start
                 self.face.activation.start = start
-                self.face.activation.target = start.copy()
+            self.face.end_step(stats.converged)
         else:
             res = self.face.solve_static()
             stats = StepStats(converged=res.converged, substeps=len(res.steps),
@@ -140,6 +152,7 @@ class Simulation:
 
     def outputs(self):
         out = self.face.lip_outputs()
+        out["incisor_opening"] = self.face.incisor_opening()
         out["contact_force"] = float(sum(getattr(t, "total_force", 0.0) for t in self.contact))
         out["newton_iterations"] = self.last.newton_iterations
         out["substeps"] = self.last.substeps
@@ -163,6 +176,9 @@ class Simulation:
             iterator = tqdm(times, desc=sc.name, unit="record")
         for t in iterator:
             self.set_activations(sc.activations(t))
+            jaw = sc.jaw(t)
+            if jaw:
+                self.set_jaw(jaw.get("jaw_opening"), jaw.get("jaw_protrusion"))
             stats = self.step(float(t))
             if not stats.converged:
                 raise RuntimeError(f"scene {sc.name}: step to t = {t:.4g} s failed: "
@@ -178,6 +194,9 @@ class Simulation:
         row.update({k: v for k, v in out.items() if k in self.scene.record
                     or (k.startswith("strain_") and "muscle_strains" in self.scene.record)})
         row.update(self.face.activation.as_dict(self.face.activation.start))
+        if self.scene.jaw(0.0):
+            row["jaw_opening"], row["jaw_protrusion"] = self.jaw
+            row["incisor_opening"] = out["incisor_opening"]
         return row
 
     def release(self):
@@ -191,6 +210,7 @@ class Simulation:
         v = self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)
         return {"t": self.t, "u": self.face.u.copy(), "v": v.copy(),
                 "activation": self.face.activation.start.copy(),
+                "jaw": np.array(self.jaw),
                 "h": self.integrator.h if self.integrator is not None else 0.0}
 
     def set_state(self, state):
@@ -198,6 +218,7 @@ class Simulation:
         self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
         self.face.activation.start = np.array(state["activation"], dtype=float)
         self.face.activation.target = self.face.activation.start.copy()
+        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
         for term in self.contact:
             if hasattr(term, "reset"):
                 term.reset()

@@ -422,9 +422,10 @@ class Probe:
     cannot: a node passing through triangles outside its candidate pairs. Teeth: the
     signed distances to the rigid teeth sheets of the nodes the model's teeth contact
     would hold (solver.terms.contact.build_contact_terms), by RigidContact terms that are
-    in no model and search PROBE_DEPTH mm deep."""
+    in no model and search PROBE_DEPTH mm deep; with jaw (solver.jaw.Jaw, the model's),
+    the lower teeth at its pose."""
 
-    def __init__(self, anatomy, depth=PROBE_DEPTH):
+    def __init__(self, anatomy, depth=PROBE_DEPTH, jaw=None):
         from .terms.contact import build_contact_terms
         mesh = anatomy.mesh
         self.mesh = mesh
@@ -439,7 +440,7 @@ class Probe:
         self.teeth = []
         if anatomy.rigid_surfaces and surf:
             self.teeth = build_contact_terms(anatomy, lips=False, teeth=True,
-                                             search_radius=depth)
+                                             search_radius=depth, jaw=jaw)
         self._patterns = {id(t): Pattern(3 * mesh.n_nodes, t.blocks()) for t in self.teeth}
         self.inside = []          # (node, brick, depth) of the last lip measure
 
@@ -608,7 +609,7 @@ def run_case(case, progress=None, probe=True):
     t_start = time.perf_counter()
     run = CaseRun(case.name)
     sim = Simulation(parse_scene(case.scene, f"<case {case.name}>"))
-    pr = Probe(sim.anatomy) if probe else None
+    pr = Probe(sim.anatomy, jaw=sim.face.jaw) if probe else None
     bounds = output_bounds(sim.anatomy)
     n = len(case.steps)
     every = 1 if n <= 1000 else 10            # long runs: invariants at every 10th step

@@ -218,7 +218,7 @@ class Transient:
                 t_new, h = t_end, t_end - t
             lam = 1.0 if self.hold == "step" else (t_new - t0) / span
             sysm.lam, sysm.t = lam, t_new
-            targets = p_start + lam * (p_target - p_start)
+            targets = model.path_targets(pres, p_start, p_target, lam)
             u_new, rep = self._substep(sysm, u, v, h, targets, opts, prev)
             stats.newton_iterations += rep.iterations
             stats.factorizations += rep.factorizations

@@ -30,7 +30,8 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     from fmpy.validation import validate_fmu
     assert validate_fmu(str(fmu)) == []
     root = ET.fromstring(zipfile.ZipFile(fmu).read("modelDescription.xml"))
-    assert {u.get("name") for u in root.find("UnitDefinitions")} == {"mm", "s", "N", "1"}
+    assert {u.get("name") for u in root.find("UnitDefinitions")} == {"mm", "s", "N", "deg",
+                                                                    "1"}
     assert root.find("CoSimulation").get("needsExecutionTool") == "false"
     assert root.find("CoSimulation").get("canGetAndSetFMUstate") == "true"
     assert root.find("DefaultExperiment") is not None
@@ -43,8 +44,13 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     for p in ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep", "fidelity"):
         assert variables[p].get("causality") == "parameter", p
     outputs = root.find("ModelStructure").find("Outputs")
-    assert len(outputs) == 9 and all(u.get("dependencies") == "" for u in outputs)
+    assert len(outputs) == 10 and all(u.get("dependencies") == "" for u in outputs)
     assert variables["contact_force"][0].get("unit") == "N"
+    jaw = variables["jaw_opening"]
+    assert jaw.get("causality") == "input"
+    assert (jaw[0].get("unit"), jaw[0].get("min"), jaw[0].get("max")) == ("deg", "0", "20")
+    assert variables["jaw_protrusion"][0].get("unit") == "mm"
+    assert variables["incisor_opening"][0].get("unit") == "mm"
 
 
 @pytest.mark.skipif(shutil.which("fmutool") is None, reason="fmu-manipulation-toolbox absent")
@@ -130,3 +136,25 @@ def test_a_step_the_solver_cannot_take_is_refused_and_the_state_kept(fmu, tmp_pa
     assert res["status"] == 2 and res["unchanged"]
     assert re.search(r"did not converge after [1-9]\d* cutbacks", stdout)   # logged, counted
     assert res["after"][0] != 0.0                        # the next valid step moved the lips
+
+
+def test_the_jaw_through_the_fmu_opens_rolls_back_exactly_and_refuses_bad_values(fmu,
+                                                                                  tmp_path):
+    """jaw_opening and jaw_protrusion as FMU inputs: the incisor opening follows the
+    geometry (7.945 deg: 12 mm), the lips open with it, a jaw step repeated after a
+    rollback (getFMUstate, and its serialized bytes) gives identical outputs, and NaN,
+    inf or out-of-range jaw inputs are refused with fmi2Discard, a message naming the
+    input, and the outputs unchanged."""
+    res, stdout = _run("jaw.py", fmu, tmp_path)
+    opened = res["opening"]
+    assert res["rest"]["incisor_opening"] == 0.0
+    assert abs(opened[-1]["incisor_opening"] - 12.0) < 0.01
+    assert opened[-1]["lip_aperture"] > res["rest"]["lip_aperture"] + 5.0
+    first, second, third = res["rollback"]
+    assert first == second == third
+    assert first["incisor_opening"] != opened[-1]["incisor_opening"]
+    assert all(status == 2 and same for _, status, same in res["refused"]), res["refused"]
+    for needle in ("jaw_opening = nan", "jaw_opening = 25.0 deg", "jaw_opening = -1.0 deg",
+                   "jaw_protrusion = inf", "jaw_protrusion = 11.0 mm"):
+        assert needle in stdout, needle
+    assert abs(res["after_refusals"]["incisor_opening"] - 12.0) < 0.01

@@ -51,6 +51,8 @@ cheeks.
 Sets and landmarks
 ------------------
 node_sets: 'fixed' (skull-side nodes, except where the lips and cheeks lie on the teeth),
+'fixed_mandible' (those below the row line of the slit, the occlusal plane: on the
+mandible, they follow the jaw), 'fixed_skull' (the others),
 'midsagittal' (x == 0), 'inner_surface', 'outer_surface', 'slit_upper', 'slit_lower'
 (the duplicated slit nodes of each lip, every thickness level).
 element_sets: 'layer_inner', 'layer_middle', 'layer_outer'.
@@ -117,7 +119,10 @@ def _node_sets(grid, nodes, n_levels):
     cut = generic_shape.in_mouth(grid.column_phi)
     every = ns * np.arange(n_levels)[:, None]
     free = generic_muscles.is_free(grid.phi, grid.z)
+    low = grid.z < generic_shape.row_line(grid.phi)
     return {"fixed": inner[~free],
+            "fixed_skull": inner[~free & ~low],
+            "fixed_mandible": inner[~free & low],
             "midsagittal": np.flatnonzero(nodes[:, 0] == 0.0),
             "inner_surface": inner,
             "outer_surface": inner + ns * (n_levels - 1),

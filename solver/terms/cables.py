@@ -1,10 +1,15 @@
-"""Muscle cables embedded in the bricks they lie in (see solver.kernels.cable)."""
+"""Muscle cables embedded in the bricks they lie in (see solver.kernels.cable).
+
+A cable end on bone (an insertion) is a fixed point; where the muscle inserts on the
+mandible (solver.jaw.MANDIBLE_MUSCLES) it follows the jaw's pose along the load path.
+"""
 
 import numpy as np
 
 from ..anatomy.base import MUSCLE_NAMES
 from ..element import shape_functions
 from ..embedding import locate
+from ..jaw import MANDIBLE_MUSCLES
 from ..kernels.cable import cable_forces
 from .base import Term
 
@@ -16,12 +21,13 @@ class Cables(Term):
     muscles     names of the driven muscles
     properties  solver.muscles.MuscleProperties
     activation  solver.activation.Activation (shared with the stiffening term)
+    jaw         solver.jaw.Jaw or None: moves the insertions of the muscles on the mandible
     """
 
     name = "cables"
 
-    def __init__(self, anatomy, muscles, properties, activation):
-        self.properties, self.activation = properties, activation
+    def __init__(self, anatomy, muscles, properties, activation, jaw=None):
+        self.properties, self.activation, self.jaw = properties, activation, jaw
         fibres = [f for f in anatomy.fibres if f.muscle in muscles]
         self.fibres = fibres
         mesh = anatomy.mesh
@@ -42,6 +48,10 @@ class Cables(Term):
         E = properties.youngs_modulus()
         self.AE = np.array([properties.area(MUSCLE_NAMES[m]) * E for m in self.muscle])
         self.point_host, self.point_xi, self.point_fixed = host, xi, fixed
+        on_jaw = fixed & np.concatenate([[f.muscle in MANDIBLE_MUSCLES] * len(f.points)
+                                         for f in fibres])
+        self.jaw_ends = on_jaw[ends] if jaw is not None else np.zeros(ends.shape, bool)
+        self._X = self.X                                # at the last assembled pose
         c = len(ends)
         self._fe, self._ke = np.empty((c, 48)), np.empty((c, 48, 48))
         self.tension = np.zeros(c)
@@ -56,12 +66,23 @@ class Cables(Term):
 
     def point_positions(self, u):
         """(c, 2, 3) current cable end positions for displacements u (n, 3)."""
-        return self.X + np.einsum("cpa,cpaj->cpj", self.w,
-                                  u[self.nodes.reshape(-1, 2, 8)])
+        return self._X + np.einsum("cpa,cpaj->cpj", self.w,
+                                   u[self.nodes.reshape(-1, 2, 8)])
+
+    def rest_points(self, lam):
+        """(c, 2, 3) the cable ends' reference positions at load factor lam: the rest
+        positions, the mandible's insertions moved by the jaw's pose."""
+        if self.jaw is None or not self.jaw.moving or not self.jaw_ends.any():
+            return self.X
+        X = self.X.copy()
+        X[self.jaw_ends] = self.jaw.geometry.transform(self.X[self.jaw_ends],
+                                                       self.jaw.at(lam))
+        return X
 
     def assemble(self, state, asm, block_ids):
         e = self.active_strain(state.lam)
-        asm.energy += cable_forces(state.u, self.X, self.w, self.nodes, self.AE, self.L0, e,
+        self._X = self.rest_points(state.lam)
+        asm.energy += cable_forces(state.u, self._X, self.w, self.nodes, self.AE, self.L0, e,
                                    asm.need_k, self._fe, self._ke, self.tension)
         asm.add_block(block_ids[0], self._fe, self._ke if asm.need_k else None)
 

@@ -428,11 +428,13 @@ class RigidContact(_Report, Term):
     rest_offset     move the slaves that the law pushes on at rest onto the surface by a
                     constant offset each (.offset (s, 3)), so that the rest state carries
                     no contact force (see the module docstring)
+    motion          (jaw, moving) or None: the vertices flagged moving (p,) follow the
+                    rigid pose jaw.at(lam) of a solver.jaw.Jaw (the lower teeth)
     """
 
     def __init__(self, mesh, slave_nodes, surface, penalty=PENALTY, name="rigid_contact",
                  area=None, search_radius=3.0, margin=1.0, rest_tolerance=0.1, smoothing=0.0,
-                 fade=EDGE_FADE, rest_offset=True):
+                 fade=EDGE_FADE, rest_offset=True, motion=None):
         _check(penalty, smoothing)
         if not fade >= 0:
             raise ParameterError(f"{name}: fade = {fade!r} must be >= 0 (mm)")
@@ -473,6 +475,24 @@ class RigidContact(_Report, Term):
             self.offset = self._rest_offsets()
             self.x0 = self.x0 + self.offset
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((mesh.n_nodes, 3)))
+        self.motion, self.rest_vertices = motion, self.vertices.copy()
+        self.pose = np.zeros(2)
+
+    def _move(self, lam):
+        """Put the moving vertices at the jaw's pose at load factor lam (normals and the
+        candidate search follow); nothing to do where the pose is unchanged."""
+        jaw, moving = self.motion
+        pose = jaw.at(lam)
+        if np.array_equal(pose, self.pose):
+            return
+        self.pose = pose
+        v = self.rest_vertices.copy()
+        if np.any(pose != 0.0):
+            v[moving] = jaw.geometry.transform(v[moving], pose)
+        self.vertices = np.ascontiguousarray(v)
+        self.normals.update(self.vertices)
+        self._tree = cKDTree(self.vertices[self.tris].mean(axis=1))
+        self._cached = None
 
     def _stiffnesses(self):
         return [self.k]
@@ -520,6 +540,8 @@ class RigidContact(_Report, Term):
         return self._cached[1], self._cached[2]
 
     def assemble(self, state, asm, block_ids):
+        if self.motion is not None:
+            self._move(state.lam)
         x = self.x0 + state.u[self.slaves]
         ptr, cand = self._candidates(x)
         gap, force = np.empty(len(x)), np.empty(len(x))
@@ -762,22 +784,38 @@ def joined_surfaces(surfaces, tol=1e-9):
     return {name: RigidSurface(v, t) for name, v, t in groups}
 
 
+def _jaw_motion(surfaces, surface, jaw, tol=1e-9):
+    """(jaw, moving (p,)) for a (joined) rigid surface: its vertices that are the lower
+    teeth's and not the upper teeth's; None without a jaw or such vertices."""
+    if jaw is None or "lower_teeth" not in surfaces:
+        return None
+    v = np.asarray(surface.vertices, float)
+    moving = cKDTree(surfaces["lower_teeth"].vertices).query(v)[0] <= tol
+    if "upper_teeth" in surfaces:
+        moving &= cKDTree(surfaces["upper_teeth"].vertices).query(v)[0] > tol
+    return (jaw, moving) if moving.any() else None
+
+
 def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest_offset=True,
-                        lip_penalty=None, **options):
+                        lip_penalty=None, jaw=None, **options):
     """The contact terms of an Anatomy: a RigidContact per rigid surface (surfaces that
     share a seam joined: joined_surfaces; named '<surface>_contact'; slaves: the movable
     nodes of the mesh boundary within teeth_distance (mm) of it at rest: the inner lip and
     cheek surfaces; rest_offset as RigidContact's) when teeth, a LipContact when lips
     (mirrored on the 'midsagittal' nodes of a half anatomy), with lip_penalty (N/mm^3)
-    where given; options go to every term (penalty, smoothing)."""
+    where given; options go to every term (penalty, smoothing). jaw (solver.jaw.Jaw):
+    the lower teeth's vertices follow its pose (those that the upper teeth share, on a
+    seam, stay with the upper: the lower sheet's first row stretches over the gap).
+    """
     mesh, surfaces = anatomy.mesh, anatomy.contact_surfaces
     terms = []
     if teeth:
         nodes = np.setdiff1d(np.unique(mesh.boundary_faces()), mesh.node_sets.get("fixed", []))
         for name, surface in joined_surfaces(anatomy.rigid_surfaces).items():
+            motion = _jaw_motion(anatomy.rigid_surfaces, surface, jaw)
             terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
                                       surface, name=f"{name}_contact",
-                                      rest_offset=rest_offset, **options))
+                                      rest_offset=rest_offset, motion=motion, **options))
     if lips:
         mirror = mesh.node_sets["midsagittal"] if anatomy.half else None
         lip = dict(options, **({} if lip_penalty is None else {"penalty": lip_penalty}))
