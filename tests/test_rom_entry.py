@@ -154,3 +154,26 @@ def test_fmu_carries_a_trained_model_and_refuses_without_one(trained, scene_file
     assert "rom_train.py --scene default" in run.stdout
     assert len(res["outs"]) == 5 and res["outs"][-1][1] != 0.0
     assert res["first"] == res["second"]                     # a rollback repeats exactly
+
+
+def test_realtime_hands_over_to_the_full_model_when_the_jaw_opens(trained, scene_file,
+                                                                  monkeypatch):
+    """The reduced models are trained with the jaw closed: a closed jaw keeps the reduced
+    model; an open one is outside its envelope, so the run goes on with the full model,
+    with a TrustWarning naming the jaw, and the jaw opens the lips."""
+    from solver.rom.simulation import ReducedSimulation, TrustWarning
+    from solver.simulation import Simulation
+    monkeypatch.setenv("FACEFMU_ROM_DIR", str(trained["folder"]))
+    sim = Simulation(scene_file, loaded_anatomy=trained["full"].anatomy)
+    assert isinstance(sim, ReducedSimulation)
+    sim.set_activations({"OOP": 0.3})
+    sim.set_jaw(0.0, 0.0)
+    assert sim.step(0.005).converged and sim.mode == "rom"
+    rest = sim.outputs()
+    assert rest["incisor_opening"] == 0.0
+    with pytest.warns(TrustWarning, match="jaw pose"):
+        sim.set_jaw(6.0)
+    assert sim.mode == "full"
+    assert sim.step(0.015).converged
+    out = sim.outputs()
+    assert out["incisor_opening"] > 8.0 and out["lip_aperture"] > rest["lip_aperture"] + 3.0

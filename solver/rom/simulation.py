@@ -205,6 +205,21 @@ class ReducedSimulation(Simulation):
         self.last = stats
         return stats
 
+    def set_jaw(self, opening=None, protrusion=None):
+        """As Simulation.set_jaw. The reduced models are trained with the jaw closed: a
+        jaw pose other than closed is outside their envelope, so the simulation goes on
+        with the full model (mode 'full', a TrustWarning naming the cause)."""
+        if self.face.jaw is None:
+            return super().set_jaw(opening, protrusion)     # refused: no jaw
+        self.face.jaw.set(opening, protrusion)              # checked, or refused
+        if self.mode == "rom" and np.any(self.face.jaw.target != 0.0):
+            warnings.warn(f"realtime model at t = {self.t:.4g} s: jaw pose "
+                          f"{tuple(float(v) for v in self.face.jaw.target)} outside its "
+                          "training envelope (trained with the jaw closed); switching to "
+                          "the full model", TrustWarning, stacklevel=2)
+            self._to_full(self.q, self.v_r, self.face.activation.start.copy())
+        self.face.set_jaw(opening, protrusion)
+
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
@@ -216,6 +231,7 @@ class ReducedSimulation(Simulation):
                 out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
         else:
             out = self._outputs(self.q)
+        out["incisor_opening"] = 0.0                    # the jaw is closed in mode 'rom'
         out["contact_force"] = self.stepper.contact_force
         out["newton_iterations"] = self.last.newton_iterations
         out["substeps"] = self.last.substeps
