@@ -44,6 +44,7 @@ substep controller bounds each substep's local error, so the global error grows 
 the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
 """
 
+import math
 import os
 import resource
 import time
@@ -55,6 +56,7 @@ import numpy as np
 from .anatomy.base import MUSCLE_NAMES
 from .assembly import Assembly, Pattern
 from .face import LIP_OUTPUTS
+from .jaw import BONWILL_MM
 from .scene import parse_scene
 from .terms.base import State
 
@@ -254,6 +256,17 @@ def cases(full=False):
                         "pressed (OOP + OOM ramped to 1)",
                         scene_dict("one_second_step", ("OOP", "OOM"), "ramp"),
                         [(1.0, press)]))
+    # the jaw opening and closing at 10 Hz (0 to 12 mm of incisor opening) while OOP and
+    # OOM press the lips together, 5 ms steps
+    n = 100 if full else 10
+    theta = 2.0 * math.degrees(math.asin(6.0 / BONWILL_MM))
+    out.append(Case("jaw_10hz_pressed", f"the jaw opening and closing at 10 Hz (0 to "
+                    f"{theta:.2f} deg, 12 mm at the incisors) with OOP + OOM at 1, "
+                    f"{n * 5} ms in 5 ms steps",
+                    scene_dict("jaw_10hz_pressed", ("OOP", "OOM"), "ramp"),
+                    [(0.005, {**press, "jaw_opening": 0.5 * theta * (
+                        1.0 - math.cos(2.0 * math.pi * 10.0 * 0.005 * (k + 1)))})
+                     for k in range(n)]))
     # rolled back and re-stepped at a contact-heavy point (lips pressed)
     n, r = (10, 1000) if full else (2, 20)
     out.append(Case("rollback_pressed", f"lips pressed (OOP + OOM at 1, {n * 5} ms), then "
@@ -602,6 +615,14 @@ def lip_outputs(sim):
     return {k: float(out[k]) for k in LIP_OUTPUTS}
 
 
+def _set_inputs(sim, acts):
+    """A step's inputs: activations (muscle -> a, 0 where absent) and, where the model
+    has a jaw, its pose ('jaw_opening' deg, 'jaw_protrusion' mm, 0 where absent)."""
+    sim.set_activations({m: acts.get(m, 0.0) for m in sim.face.muscles})
+    if sim.face.jaw is not None:
+        sim.set_jaw(acts.get("jaw_opening", 0.0), acts.get("jaw_protrusion", 0.0))
+
+
 def run_case(case, progress=None, probe=True):
     """Run a Case in this process; returns a CaseRun. progress(k, n) is called after
     each step; probe: measure penetrations."""
@@ -621,7 +642,7 @@ def run_case(case, progress=None, probe=True):
         if case.memory and k == max(1, n // 10):
             mem0 = rss_mb()
         snap = _snapshot(sim)
-        sim.set_activations({m: acts.get(m, 0.0) for m in sim.face.muscles})
+        _set_inputs(sim, acts)
         stats = sim.step(sim.t + h)
         run.cutbacks += stats.cutbacks
         run.worst_cutbacks = max(run.worst_cutbacks, stats.cutbacks)
@@ -670,7 +691,7 @@ def run_case(case, progress=None, probe=True):
         saved, t_saved, first = sim.get_state(), sim.t, None
         for i in range(case.rollback):
             sim.set_state(saved)
-            sim.set_activations({m: acts.get(m, 0.0) for m in sim.face.muscles})
+            _set_inputs(sim, acts)
             if not sim.step(t_saved + h).converged:
                 run.problem(n, f"repeat {i} of the rolled-back step refused")
                 break

@@ -69,7 +69,8 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
     import sys
     names = ["all_muscles_step", "bang_bang_20hz", "oop_buc_contact", "pressed_released",
              "switching_0", "switching_1", "switching_2", "rollback_pressed", "tiny_steps",
-             "huge_steps", "pressed_100ms_steps", "rest_1ms_steps", "refusal"]
+             "huge_steps", "pressed_100ms_steps", "rest_1ms_steps", "refusal",
+             "jaw_10hz_pressed"]
     specs = [S.fmu_spec(QUICK[n], tmp_path / f"{n}.toml") for n in names]
     (tmp_path / "cases.json").write_text(json.dumps(specs))
     proc = subprocess.run([sys.executable, str(SCRIPTS / "stress_case.py"), str(fmu),

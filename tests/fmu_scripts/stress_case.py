@@ -4,8 +4,8 @@ here: the FMU's bundled copy must be the one that runs).
     python stress_case.py FMU OUT.json CASES.json
 
 CASES.json: a list of {"name", "scene" (TOML path), "tolerance", "max_substep",
-"steps": [[s, {muscle: a}], ...], "memory": bool}. For each case, one FMU instance steps
-like a master: set all ten activations, doStep; a step answered with fmi2Discard is
+"steps": [[s, {muscle: a, jaw input: value}], ...], "memory": bool}. For each case, one FMU
+instance steps like a master: set all ten activations and the jaw inputs, doStep; a step answered with fmi2Discard is
 recorded and the master goes on from the same time. OUT.json: per case the status of
 each step, the outputs after it, and the resident memory (MB) at 10 % and at the end.
 """
@@ -22,11 +22,19 @@ from fmpy.fmi2 import FMU2Slave
 LIP = ["lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
        "lower_lip_protrusion"]
 MUSCLES = ["LLSAN", "LAO", "ZYG", "RIS", "BUC", "DAO", "DLI", "MENT", "OOP", "OOM"]
+JAW = ["jaw_opening", "jaw_protrusion"]
 
 
 def rss_mb():
     with open("/proc/self/statm") as fh:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+
+
+def set_inputs(fmu, vr, refs, acts):
+    """All ten activations (0 where absent) and the jaw inputs the FMU has (likewise)."""
+    fmu.setReal(refs, [float(acts.get(m, 0.0)) for m in MUSCLES])
+    jaw = [k for k in JAW if k in vr]
+    fmu.setReal([vr[k] for k in jaw], [float(acts.get(k, 0.0)) for k in jaw])
 
 
 def run(md, unzip, vr, case):
@@ -54,7 +62,7 @@ def run(md, unzip, vr, case):
         if case.get("memory") and k == max(1, n // 10):
             mem["start"] = rss_mb()
         before = fmu.getReal(out_refs)
-        fmu.setReal(refs, [float(acts.get(m, 0.0)) for m in MUSCLES])
+        set_inputs(fmu, vr, refs, acts)
         try:
             fmu.doStep(t, h)
             status = 0
@@ -75,7 +83,7 @@ def run(md, unzip, vr, case):
         rollback = {"repeats": 0, "identical": True}
         for i in range(case["rollback"]):
             fmu.setFMUstate(state)
-            fmu.setReal(refs, [float(acts.get(m, 0.0)) for m in MUSCLES])
+            set_inputs(fmu, vr, refs, acts)
             try:
                 fmu.doStep(t, h)
             except FMICallException as exc:
