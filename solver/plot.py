@@ -29,8 +29,10 @@ SKIN, FIXED = "#f2c9a8", "#5b6b7c"
 VIEWS = (("three-quarter front, left", 18, 125), ("left side", 0, 180))
 
 
-def plot_anatomy(anatomy, path, displacement=None, title=None):
-    """Write a PNG of anatomy (optionally deformed by displacement (n, 3) mm) to path."""
+def plot_anatomy(anatomy, path, displacement=None, title=None, rigid=()):
+    """Write a PNG of anatomy (optionally deformed by displacement (n, 3) mm) to path;
+    rigid: (vertices (p, 3), triangles (t, 3)) surfaces drawn in grey (the teeth, as
+    posed)."""
     mesh = anatomy.mesh
     u = np.zeros_like(mesh.nodes) if displacement is None else np.asarray(displacement)
     x = mesh.nodes + u
@@ -41,6 +43,11 @@ def plot_anatomy(anatomy, path, displacement=None, title=None):
     for i, (label, elev, azim) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d", computed_zorder=False,
                              proj_type="ortho")
+        for v, t in rigid:
+            ax.add_collection3d(Poly3DCollection(np.asarray(v)[np.asarray(t)],
+                                                 facecolors=(0.55, 0.55, 0.6, 0.35),
+                                                 edgecolors=(0.3, 0.3, 0.35, 0.15),
+                                                 linewidths=0.2, zorder=0))
         _draw(ax, anatomy, x, skin, fibres, _camera(elev, azim))
         _frame(ax, x, elev, azim, label)
     _legend(fig, anatomy)

@@ -247,3 +247,25 @@ def test_a_scene_schedule_drives_the_jaw(tmp_path):
     path.write_text('[[schedule]]\njaw = "opening"\nkind = "step"\ntime = 0.0\nvalue = 30.0\n')
     with pytest.raises(SceneError, match="schedule.0"):
         load_scene(path)
+
+
+def test_the_moved_teeth_keep_every_slaves_nearest_triangle_among_its_candidates():
+    """Opened by 12 mm, the lower arch's first row stretches over the gap (its vertices on
+    the seam stay with the upper arch): each slave's candidate triangles must still hold
+    its nearest triangle of the whole surface (the candidate search reaches as far as the
+    stretched triangles are long)."""
+    from solver.kernels.contact import nearest
+    sim = Simulation("default", fidelity="balanced", driven=())
+    theta = 2.0 * math.degrees(math.asin(6.0 / BONWILL_MM))
+    for k in range(1, 6):
+        sim.set_jaw(opening=theta * min(1.0, k / 5))
+        assert sim.step(0.01 * k).converged
+    teeth = next(t for t in sim.contact if getattr(t, "motion", None))
+    x = teeth.x0 + sim.face.u[teeth.slaves]
+    ptr, cand = teeth._candidates(x)
+    everything = np.arange(len(teeth.tris))
+    w, wt = np.empty(3), np.empty(3)
+    for i, p in enumerate(x):
+        near = nearest(p, teeth.vertices, teeth.tris, cand[ptr[i]:ptr[i + 1]], w, wt)[2]
+        best = nearest(p, teeth.vertices, teeth.tris, everything, w, wt)[2]
+        assert near <= best + 1e-12, (i, near, best)

@@ -491,7 +491,10 @@ class RigidContact(_Report, Term):
             v[moving] = jaw.geometry.transform(v[moving], pose)
         self.vertices = np.ascontiguousarray(v)
         self.normals.update(self.vertices)
-        self._tree = cKDTree(self.vertices[self.tris].mean(axis=1))
+        corners = self.vertices[self.tris]
+        centroids = corners.mean(axis=1)
+        self._tree = cKDTree(centroids)
+        self._reach = np.linalg.norm(corners - centroids[:, None], axis=2).max()
         self._cached = None
 
     def _stiffnesses(self):
