@@ -67,6 +67,9 @@ PRESET_PARAMETERS = {"level": "coarse", "half_face": True, "tolerance": 1e-3,
 
 
 class FaceFMU(Fmi2Slave):
+    """The FMI 2.0 co-simulation slave: the inputs, outputs and parameters of the module
+    docstring over a solver.simulation.Simulation."""
+
     author = "FaceFMU developers"
     description = ("Finite-element face (Nazari et al. orofacial model): ten muscle "
                    "activations in, lip aperture and protrusion out")

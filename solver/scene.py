@@ -59,7 +59,7 @@ recorded outputs and, for standalone runs, activation schedules.
     record = ["lip_aperture", "lip_protrusion", "lip_width"]   # see OUTPUTS
     interval = 0.005                # s, standalone runs
 
-"muscle_strains" records strain_min_<M> and strain_max_<M>: the most compressive and most
+"muscle_strains" records strain_min_M and strain_max_M (M a muscle): the most compressive and most
 tensile logarithmic principal strain over each driven muscle's region (its stiffening
 neighbourhood).
 
@@ -129,6 +129,9 @@ class Schedule:
 
 @dataclass(frozen=True)
 class Scene:
+    """A scene: what to simulate and how (the TOML sections of the module docstring, one
+    field per key; schedules: Schedule tuple). Frozen: with_overrides returns a copy."""
+
     name: str = "custom"
     description: str = ""
     analysis: str = "transient"

@@ -112,9 +112,12 @@ class Simulation:
 
     @property
     def term_names(self):
+        """The model's terms, by name, in the order the solver walks them."""
         return self.face.term_names
 
     def set_activations(self, values):
+        """Target activations for the next step: dict muscle -> a in [0, 1] (the others
+        keep theirs); a bad value raises ParameterError naming it, nothing changed."""
         self.face.set_activations(values)
 
     def set_jaw(self, opening=None, protrusion=None):
@@ -151,6 +154,9 @@ class Simulation:
         return stats
 
     def outputs(self):
+        """dict: the lip measures (mm, solver.face.FaceModel.lip_outputs), incisor_opening
+        (mm), contact_force (N), the last step's solver statistics, and with the record
+        'muscle_strains' each driven muscle's extreme principal strains."""
         out = self.face.lip_outputs()
         out["incisor_opening"] = self.face.incisor_opening()
         out["contact_force"] = float(sum(getattr(t, "total_force", 0.0) for t in self.contact))
@@ -214,6 +220,8 @@ class Simulation:
                 "h": self.integrator.h if self.integrator is not None else 0.0}
 
     def set_state(self, state):
+        """Resume from a get_state dict: time, displacements, velocities, activations,
+        jaw pose and substep size."""
         self.t = float(state["t"])
         self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
         self.face.activation.start = np.array(state["activation"], dtype=float)

@@ -802,7 +802,7 @@ def _jaw_motion(surfaces, surface, jaw, tol=1e-9):
 def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest_offset=True,
                         lip_penalty=None, jaw=None, **options):
     """The contact terms of an Anatomy: a RigidContact per rigid surface (surfaces that
-    share a seam joined: joined_surfaces; named '<surface>_contact'; slaves: the movable
+    share a seam joined: joined_surfaces; named after the surface, with '_contact'; slaves: the movable
     nodes of the mesh boundary within teeth_distance (mm) of it at rest: the inner lip and
     cheek surfaces; rest_offset as RigidContact's) when teeth, a LipContact when lips
     (mirrored on the 'midsagittal' nodes of a half anatomy), with lip_penalty (N/mm^3)
