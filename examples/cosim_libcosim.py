@@ -46,15 +46,18 @@ def cosimulate(folder, stop, step):
     rows, t = [], 0.0
     for _ in range(int(round(stop / step))):
         acts = observer.last_real_values(ctrl, [ref[ctrl, m] for m in MUSCLES])
+        opening = observer.last_real_values(ctrl, [ref[ctrl, "jaw_opening"]])[0]
         targets = observer.last_real_values(ctrl, [ref[ctrl, TARGETS[o]] for o in OUTPUTS])
         phoneme = observer.last_string_values(ctrl, [ref[ctrl, "phoneme"]])[0]
         if not execution.step(1):
             raise RuntimeError(f"libcosim could not step from t = {t} s")
         t += step
         y = observer.last_real_values(face, [ref[face, o] for o in OUTPUTS])
+        incisors = observer.last_real_values(face, [ref[face, "incisor_opening"]])[0]
         rows.append({"time": t, "phoneme": phoneme.decode() if isinstance(phoneme, bytes)
                      else phoneme, **{TARGETS[o]: v for o, v in zip(OUTPUTS, targets)},
-                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts))})
+                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts)),
+                     "jaw_opening": opening, "incisor_opening": incisors})
     return rows
 
 

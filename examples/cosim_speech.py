@@ -4,8 +4,8 @@ speech lip targets through fmpy; exit 1 if a target is missed.
     python examples/cosim_speech.py [--step 0.005] [--out out/cosim] [--targets FILE]
                                     [--scene default] [--level coarse] [--fidelity ""]
 
-The controller's ten activations drive the face; the face's lip aperture, protrusion and
-width feed back to the controller. A target is met when, at the end of its window, the
+The controller's ten activations and jaw opening drive the face; the face's lip aperture,
+protrusion and width feed back to the controller. A target is met when, at the end of its window, the
 aperture and protrusion errors are each within 0.3 mm, and the width error within 0.5 mm
 where the width is targeted. Prints the tracking table, the wall time and the real-time
 factor, and writes a CSV and a PNG of targets, outputs and activations.
@@ -75,20 +75,26 @@ def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, control_para
     face, fv = instantiate(face_fmu, "face", face_params)
     ctrl, cv = instantiate(control_fmu, "control", control_params)
     rows, t = [], 0.0
+    jaw = "jaw_opening" in cv and "jaw_opening" in fv          # both FMUs have the jaw
     for _ in range(int(round(stop / step))):
         y = face.getReal([fv[o] for o in OUTPUTS])
         acts = ctrl.getReal([cv[m] for m in MUSCLES])
+        opening = ctrl.getReal([cv["jaw_opening"]])[0] if jaw else 0.0
         targets = ctrl.getReal([cv[TARGETS[o]] for o in OUTPUTS])
         phoneme = ctrl.getString([cv["phoneme"]])[0]
         ctrl.setReal([cv[o] for o in OUTPUTS], y)
         face.setReal([fv[m] for m in MUSCLES], acts)
+        if jaw:
+            face.setReal([fv["jaw_opening"]], [opening])
         ctrl.doStep(t, step)
         face.doStep(t, step)
         t += step
         y = face.getReal([fv[o] for o in OUTPUTS])
+        incisors = face.getReal([fv["incisor_opening"]])[0] if jaw else 0.0
         rows.append({"time": t, "phoneme": phoneme.decode() if isinstance(phoneme, bytes)
                      else phoneme, **{TARGETS[o]: v for o, v in zip(OUTPUTS, targets)},
-                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts))})
+                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts)),
+                     "jaw_opening": opening, "incisor_opening": incisors})
     for f in (face, ctrl):
         f.terminate()
         f.freeInstance()
@@ -118,13 +124,14 @@ def tracking(rows, targets):
 
 
 def table(results):
-    lines = [f"{'target':8s}{'window end':12s}{'output':16s}{'target':>8s}{'achieved':>10s}"
-             f"{'error':>8s}{'tol':>6s}  result"]
+    lines = [f"{'target':8s}{'window end':12s}{'jaw deg':>8s}  {'output':16s}{'target':>8s}"
+             f"{'achieved':>10s}{'error':>8s}{'tol':>6s}  result"]
     for tg, t, checks in results:
         for k, (o, (target, got, err, tol, met)) in enumerate(checks.items()):
-            ph, end = (f"/{tg['phoneme']}/", f"{t:.3f} s") if k == 0 else ("", "")
-            lines.append(f"{ph:8s}{end:12s}{o:16s}{target:8.2f}{got:10.2f}{err:+8.2f}"
-                         f"{tol:6.1f}  {'met' if met else 'MISSED'}")
+            ph, end, jaw = (f"/{tg['phoneme']}/", f"{t:.3f} s",
+                            f"{tg.get('jaw_opening', 0.0):.1f}") if k == 0 else ("", "", "")
+            lines.append(f"{ph:8s}{end:12s}{jaw:>8s}  {o:16s}{target:8.2f}{got:10.2f}"
+                         f"{err:+8.2f}{tol:6.1f}  {'met' if met else 'MISSED'}")
     return "\n".join(lines)
 
 
@@ -153,6 +160,8 @@ def plot(rows, targets, path):
         a.plot(t, [r[o] for r in rows], color="C0", label=o.replace("_", " "))
         a.plot(t, [r[TARGETS[o]] for r in rows], "--", color="C1", label="target")
         a.set_ylabel(f"{o.split('_')[1]} (mm)")
+    ax[0].plot(t, [r["incisor_opening"] for r in rows], ":", color="0.4",
+               label="incisor opening (jaw)")
     for m in MUSCLES:
         if max(r[m] for r in rows) > 0.01:
             ax[3].plot(t, [r[m] for r in rows], label=m)

@@ -23,36 +23,40 @@ def lip_map():
 
 def test_the_map_jacobian_matches_finite_differences(lip_map, rng):
     m, _ = lip_map
-    for w in rng.random((5, 4)):
-        J = m.jacobian(w)
+    for w, jaw in zip(rng.random((5, 4)), rng.uniform(0.0, 10.0, 5)):
+        J = m.jacobian(w, jaw)
         h = 1e-6
-        fd = np.stack([(m(w + h * e) - m(w - h * e)) / (2 * h) for e in np.eye(4)], axis=1)
+        fd = np.stack([(m(w + h * e, jaw) - m(w - h * e, jaw)) / (2 * h) for e in np.eye(4)],
+                      axis=1)
         assert np.allclose(J, fd, atol=1e-6, rtol=1e-5)
 
 
 def test_the_inverse_reaches_what_the_map_can_do_within_bounds(lip_map, rng):
     m, _ = lip_map
     q = np.ones(3)
-    for w in rng.random((10, 4)):
-        y = m(w)
-        got = m.inverse(y, q, lam=1e-3)
+    for w, jaw in zip(rng.random((10, 4)), rng.uniform(0.0, 10.0, 10)):
+        y = m(w, jaw)
+        got = m.inverse(y, q, lam=1e-3, jaw=jaw)
         assert np.all((got >= 0) & (got <= 1))
-        assert np.abs(m(got) - y).max() < 0.05
+        assert np.abs(m(got, jaw) - y).max() < 0.05
     far = m.inverse([30.0, 10.0, 80.0], q)           # out of reach: held at the bounds
     assert np.all((far >= 0) & (far <= 1))
 
 
 def test_the_identified_map_and_targets_are_the_faces(lip_map):
-    """The stored fit is good, and every stored target is the map at its intent."""
+    """The stored fit is good, every stored target is the map at its intent and jaw
+    opening, and the open vowel /a/ opens the lips by at least 8 mm with the jaw."""
     m, data = lip_map
     assert max(data["fit"]["loo_rms"]) < 0.3
     assert data["provenance"]["face"]["scene"] == "default"
     assert len(data["targets"]) >= 5
     for tg in data["targets"]:
         assert 0.1 <= tg["duration"] <= 0.25
-        y = m(np.array([tg["intent"][n] for n in NAMES]))
+        y = m(np.array([tg["intent"][n] for n in NAMES]), tg["jaw_opening"])
         for o, v in zip(OUTPUTS, y):
             assert tg[o] == pytest.approx(max(v, 0.0) if o == "lip_aperture" else v, abs=0.06)
+    a_target = next(tg for tg in data["targets"] if tg["phoneme"] == "a")
+    assert a_target["jaw_opening"] > 0 and a_target["lip_aperture"] >= 8.0
     a = activations([1.0, 0.0, 0.5, 0.0])
     assert a["LLSAN"] == a["DLI"] == 1.0 and a["RIS"] == a["ZYG"] == 0.5 and a["OOP"] == 0.0
 

@@ -1,23 +1,27 @@
 """Identify the face's static lip map from FaceFMU's own responses, and choose speech
 targets that the face can reach.
 
-    python examples/motor_control/identify.py [--samples 48] [--hold 0.3] [--jobs 2]
+    python examples/motor_control/identify.py [--samples 96] [--hold 0.3] [--jobs 2]
     python examples/motor_control/identify.py --refit      # fit the stored samples again
     python examples/motor_control/identify.py --check 3    # are they still the face's?
 
-Each sample holds one set of synergy weights w (lipmc_inverse.SYNERGIES) from rest for
-`hold` seconds through FaceFMU (fmpy, 10 ms communication steps, the FMU rolled back to
-its rest state between samples) and records the lip aperture, protrusion and width at the
-end. The samples are the 16 corners of [0, 1]^4, its centre, and a seeded Latin hypercube
-for the rest. A quadratic polynomial in w is fitted by least squares; its leave-one-out
-errors are printed and stored.
+Each sample holds one set of synergy weights w (lipmc_inverse.SYNERGIES) and one jaw
+opening j from rest for `hold` seconds through FaceFMU (fmpy, 10 ms communication steps,
+the jaw ramped to j over its first JAW_RAMP seconds, the FMU rolled back to its rest state
+between samples) and records the lip aperture, protrusion and width at the end. The
+samples are x = (w, j / JAW_SCALE) in [0, 1]^5: its 32 corners, its centre, and a seeded
+Latin hypercube for the rest. A polynomial in x (lipmc_inverse.features) is fitted by
+least squares; its leave-one-out errors are printed and stored.
 
 The face's time constant (for the controller's forward model of the response) is fitted
 to the same step responses, recorded every 10 ms.
 
-Targets: each phoneme is an articulatory intent (synergy weights, PHONEMES below); its
-target is what the fitted map gives for that intent, rounded to 0.1 mm. So every target is
-one the face reaches at steady state, by the identified model.
+Targets: each phoneme is an articulatory intent (synergy weights and a jaw opening,
+PHONEMES below); its target is what the fitted map gives for that intent, rounded to
+0.1 mm, with the jaw opening as the target's command. So every target is one the face
+reaches at steady state, by the identified model. Jaw openings: 8 deg for /a/ (12 mm at
+the incisors, an open vowel), 4 deg for /o/, 2 deg for /i/, 1 deg for /u/ and 0.5 deg
+for /p/.
 
 Writes examples/motor_control/inverse_model.json (the map, its fit, the samples, the
 targets, and the command, face parameters, commit and date that produced it), which the
@@ -39,8 +43,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 sys.path.insert(0, str(HERE))
-from lipmc_inverse import (FLOORED, NAMES, OUTPUTS, SOFTNESS, LipMap,  # noqa: E402
-                           activations, features)
+from lipmc_inverse import (FLOORED, JAW_SCALE, NAMES, OUTPUTS, SOFTNESS,  # noqa: E402
+                           LipMap, activations, features)
 
 DATA = HERE / "inverse_model.json"
 CHECK = 0.05        # mm: the largest change of a stored response that --check accepts
@@ -48,26 +52,30 @@ STEP = 0.01
 # The face the map is identified on: the FMU's parameters (the main job's face).
 FACE = {"scene": "default", "level": "coarse", "fidelity": ""}
 
-# phoneme: (synergy intent (open, round, spread, close), duration s, targeted outputs)
-# durations: 100-250 ms per segment; widths are targeted where they mark the vowel
+JAW_RAMP = 0.05     # s: a sample's jaw reaches its opening over this time
+# phoneme: (synergy intent (open, round, spread, close), jaw opening deg, duration s,
+# targeted outputs); durations: 100-250 ms per segment; widths are targeted where they
+# mark the vowel
 PHONEMES = (
-    ("a", (0.85, 0.0, 0.0, 0.0), 0.20, ("lip_aperture", "lip_protrusion")),
-    ("u", (0.0, 0.9, 0.0, 0.3), 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
-    ("i", (0.4, 0.0, 0.8, 0.0), 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
-    ("p", (0.0, 0.3, 0.0, 1.0), 0.15, ("lip_aperture", "lip_protrusion")),
-    ("o", (0.6, 0.6, 0.0, 0.0), 0.20, ("lip_aperture", "lip_protrusion")),
+    ("a", (0.5, 0.0, 0.0, 0.0), 8.0, 0.20, ("lip_aperture", "lip_protrusion")),
+    ("u", (0.0, 0.9, 0.0, 0.3), 1.0, 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
+    ("i", (0.4, 0.0, 0.8, 0.0), 2.0, 0.20, ("lip_aperture", "lip_protrusion", "lip_width")),
+    ("p", (0.0, 0.3, 0.0, 1.0), 0.5, 0.15, ("lip_aperture", "lip_protrusion")),
+    ("o", (0.3, 0.6, 0.0, 0.0), 4.0, 0.20, ("lip_aperture", "lip_protrusion")),
 )
 
 
 def design(n, seed=7):
-    """Sample weights, shape (n, 4): the corners, the centre, then a Latin hypercube."""
-    corners = np.array([[(k >> b) & 1 for b in range(4)] for k in range(16)], dtype=float)
-    pts = [corners, np.full((1, 4), 0.5)]
-    rest = n - 17
+    """Sample inputs x = (w, jaw / JAW_SCALE), shape (n, 5): the corners, the centre, then
+    a Latin hypercube."""
+    d = len(NAMES) + 1
+    corners = np.array([[(k >> b) & 1 for b in range(d)] for k in range(2 ** d)], dtype=float)
+    pts = [corners, np.full((1, d), 0.5)]
+    rest = n - len(corners) - 1
     if rest > 0:
         rng = np.random.default_rng(seed)
-        lhs = (np.stack([rng.permutation(rest) for _ in range(4)], axis=1)
-               + rng.random((rest, 4))) / rest
+        lhs = (np.stack([rng.permutation(rest) for _ in range(d)], axis=1)
+               + rng.random((rest, d))) / rest
         pts.append(lhs)
     return np.vstack(pts)[:n]
 
@@ -78,10 +86,10 @@ def build_face(dest):
     return Path(dest) / "FaceFMU.fmu"
 
 
-def respond(fmu_path, weights, hold):
-    """The lip outputs every STEP of each hold (shape (len(weights), hold / STEP, 3)),
-    through the FMU; runs in a worker process (one FMU instance, rolled back to rest
-    between samples)."""
+def respond(fmu_path, samples, hold):
+    """The lip outputs every STEP of each hold (shape (len(samples), hold / STEP, 3)) of
+    the inputs samples (n, 5) (design), through the FMU; runs in a worker process (one
+    FMU instance, rolled back to rest between samples)."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
     md = read_model_description(str(fmu_path))
@@ -96,12 +104,14 @@ def respond(fmu_path, weights, hold):
     fmu.exitInitializationMode()
     rest = fmu.getFMUstate()
     out = []
-    for w in weights:
+    for x in samples:
         fmu.setFMUstate(rest)
-        acts = activations(w)
+        acts = activations(x[:len(NAMES)])
         fmu.setReal([vr[m] for m in acts], list(acts.values()))
         t, trajectory = 0.0, []
         for _ in range(int(round(hold / STEP))):
+            jaw = x[len(NAMES)] * JAW_SCALE * min(1.0, (t + STEP) / JAW_RAMP)
+            fmu.setReal([vr["jaw_opening"]], [jaw])
             fmu.doStep(t, STEP)
             t += STEP
             trajectory.append(fmu.getReal([vr[o] for o in OUTPUTS]))
@@ -131,15 +141,17 @@ def fit_output(Phi, y, floored):
     return c
 
 
-def fit(W, Y):
-    """Coefficients (3, 15), and the leave-one-out errors (n, 3) of y(w) in mm."""
-    Phi = features(W)
+def fit(X, Y):
+    """Coefficients (3, 21), and the leave-one-out errors (n, 3) of y(x) in mm, for the
+    sample inputs X (n, 5) (design)."""
+    Phi = features(X)
     coef = np.array([fit_output(Phi, Y[:, k], f) for k, f in enumerate(FLOORED)])
     loo = np.zeros_like(Y)
-    for i in range(len(W)):
-        keep = np.arange(len(W)) != i
+    n = len(NAMES)
+    for i in range(len(X)):
+        keep = np.arange(len(X)) != i
         c = np.array([fit_output(Phi[keep], Y[keep, k], f) for k, f in enumerate(FLOORED)])
-        loo[i] = LipMap(c)(W[i]) - Y[i]
+        loo[i] = LipMap(c)(X[i, :n], X[i, n] * JAW_SCALE) - Y[i]
     return coef, loo
 
 
@@ -169,7 +181,7 @@ def commit():
 def check(path, n):
     """Exit status 1 if the first n stored samples' end outputs moved by more than CHECK."""
     old = json.loads(path.read_text())
-    W = np.array(old["samples"]["weights"])[:n]
+    W = np.array(old["samples"]["inputs"])[:n]
     Y = np.array(old["samples"]["trajectories"])[:n, -1]
     with tempfile.TemporaryDirectory() as tmp:
         now = respond(build_face(tmp), W, old["provenance"]["hold"])[:, -1]
@@ -180,7 +192,7 @@ def check(path, n):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=48)
+    ap.add_argument("--samples", type=int, default=96)
     ap.add_argument("--hold", type=float, default=0.3, help="s held per sample")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=str(DATA))
@@ -195,7 +207,7 @@ def main(argv=None):
         return check(Path(args.out), args.check)
     if args.refit:
         old = json.loads(Path(args.out).read_text())
-        W, T = np.array(old["samples"]["weights"]), np.array(old["samples"]["trajectories"])
+        W, T = np.array(old["samples"]["inputs"]), np.array(old["samples"]["trajectories"])
         Y = T[:, -1]
         args.hold, command = old["provenance"]["hold"], old["provenance"]["command"]
     else:
@@ -213,7 +225,8 @@ def main(argv=None):
     coef, loo = fit(W, Y)
     tau = time_constant(T, T[0, -1])          # sample 0: no activation, the rest state
     lip_map = LipMap(coef)
-    resid = Y - np.array([lip_map(w) for w in W])
+    n = len(NAMES)
+    resid = Y - np.array([lip_map(x[:n], x[n] * JAW_SCALE) for x in W])
     rms = np.sqrt(np.mean(resid ** 2, axis=0))
     loo_rms = np.sqrt(np.mean(loo ** 2, axis=0))
     print(f"{len(W)} responses of {args.hold} s through FaceFMU"
@@ -224,23 +237,24 @@ def main(argv=None):
               f"   {loo_rms[k]:7.3f} / {np.abs(loo[:, k]).max():.3f}")
     print(f"time constant of the face's step responses: {tau * 1e3:.0f} ms")
     targets = []
-    for name, intent, duration, targeted in PHONEMES:
-        y = lip_map(np.array(intent))
+    for name, intent, jaw, duration, targeted in PHONEMES:
+        y = lip_map(np.array(intent), jaw)
         targets.append({"phoneme": name, "intent": dict(zip(NAMES, intent)),
-                        "duration": duration, "targeted": list(targeted),
+                        "jaw_opening": jaw, "duration": duration, "targeted": list(targeted),
                         **{o: round(max(float(v), 0.0) if f else float(v), 1) + 0.0
                            for o, v, f in zip(OUTPUTS, y, FLOORED)}})
-        print(f"  /{name}/ intent {intent}: " + ", ".join(
+        print(f"  /{name}/ intent {intent}, jaw {jaw:g} deg: " + ", ".join(
             f"{o} {v:.2f}" for o, v in zip(OUTPUTS, y)))
     data = {
         "about": "Static lip map of FaceFMU and speech targets (examples/motor_control/"
                  "identify.py; lipmc_inverse.py explains the model)",
-        "synergies": list(NAMES), "outputs": list(OUTPUTS), "coef": coef.tolist(),
+        "synergies": list(NAMES), "jaw_scale": JAW_SCALE, "outputs": list(OUTPUTS),
+        "coef": coef.tolist(),
         "floored": list(FLOORED), "softness": SOFTNESS,
         "fit": {"rms": rms.tolist(), "loo_rms": loo_rms.tolist(),
                 "loo_max": np.abs(loo).max(axis=0).tolist()},
         "tau_face": tau,
-        "samples": {"weights": W.tolist(), "trajectories": np.round(T, 5).tolist()},
+        "samples": {"inputs": W.tolist(), "trajectories": np.round(T, 5).tolist()},
         "targets": targets,
         "provenance": old["provenance"] | {"fitted_at_commit": commit()} if args.refit else
         {"command": command.strip(), "face": FACE, "hold": args.hold, "step": STEP,

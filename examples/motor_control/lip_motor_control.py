@@ -1,6 +1,7 @@
 """LipMotorControl: a speech motor-control model as an FMI 2.0 co-simulation FMU.
 
-It turns a sequence of lip targets into the ten face muscle activations:
+It turns a sequence of lip targets into the ten face muscle activations and the jaw
+opening:
 
 * Feedforward from an inverse model of the face. lipmc_inverse.LipMap f is the face's
   static map from four muscle synergies w (open, round, spread, close) to the lip
@@ -22,12 +23,17 @@ It turns a sequence of lip targets into the ten face muscle activations:
   tau_act 15 ms, tau_deact 40 ms by default), exact for a command held over the step:
       a(t + h) = u + (a(t) - u) exp(-h / tau),  tau = tau_act if u > a else tau_deact,
   per synergy (its muscles share its activation) and hence per muscle.
+* The jaw: each target names a jaw opening (deg; 0 where it does not), a feedforward
+  command that the jaw follows with first-order dynamics of time constant tau_jaw
+  (30 ms by default), exactly as above. The inverse and the forward model take the jaw
+  opening actually sent (the output jaw_opening, the face's input of the same name).
 
 Targets (mm) and their windows come from inverse_model.json (identify.py chose them from
 what the identified map says the face reaches) or from a JSON file named by the
 `targets_file` parameter: a list of {"phoneme", "duration" (s), "targeted" (a list of
 output names), "lip_aperture", "lip_protrusion", "lip_width" (mm), optionally "intent"
-({synergy: weight})}. After the last window the last target is held.
+({synergy: weight}) and "jaw_opening" (deg)}. After the last window the last target is
+held.
 """
 
 import json
@@ -72,6 +78,9 @@ class LipMotorControl(Fmi2Slave):
             setattr(self, m, 0.0)
             self.register_variable(Real(m, causality=Fmi2Causality.output,
                                         description=f"activation of {m}", **cont))
+        self.jaw_opening = 0.0
+        self.register_variable(Real("jaw_opening", causality=Fmi2Causality.output,
+                                    description="jaw opening command (deg)", **cont))
         disc = dict(causality=Fmi2Causality.output, variability=Fmi2Variability.discrete)
         for name in TARGET_NAMES.values():
             setattr(self, name, 0.0)
@@ -80,7 +89,9 @@ class LipMotorControl(Fmi2Slave):
         self.register_variable(String("phoneme", description="the current target", **disc))
         fixed = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
         self.tau_act, self.tau_deact, self.tau_fb, self.tau_face = 0.015, 0.04, 0.03, 0.0
+        self.tau_jaw = 0.03
         for name, text in (("tau_act", "activation time constant (s)"),
+                           ("tau_jaw", "the jaw's time constant (s)"),
                            ("tau_deact", "deactivation time constant (s)"),
                            ("tau_fb", "feedback filter time constant (s)"),
                            ("tau_face", "the forward model's time constant of the face "
@@ -115,6 +126,7 @@ class LipMotorControl(Fmi2Slave):
         self._q = np.array([1.0 if name in tg["targeted"] else 0.0 for name in OUTPUTS])
         intent = tg.get("intent", {})
         self._ref = np.array([float(intent.get(n, 0.0)) for n in NAMES])
+        self._jaw = float(tg.get("jaw_opening", 0.0))
 
     def do_step(self, current_time, step_size):
         h = step_size
@@ -128,14 +140,16 @@ class LipMotorControl(Fmi2Slave):
                      f"at t = {current_time} s", Fmi2Status.discard)
             return False
         self._d += (y - self._p - self._d) * (1.0 - math.exp(-h / self.tau_fb))
+        self.jaw_opening = self._jaw + (self.jaw_opening - self._jaw) * math.exp(
+            -h / self.tau_jaw)
         self._w = self._map.inverse(self._r - self._q * self._d, self._q, w0=self._w,
-                                    w_ref=self._ref)
+                                    w_ref=self._ref, jaw=self.jaw_opening)
         for i, u in enumerate(self._w):
             tau = self.tau_act if u > self._a[i] else self.tau_deact
             self._a[i] = u + (self._a[i] - u) * math.exp(-h / tau)
         for m, a in activations(self._a).items():
             setattr(self, m, a)
-        f = self._map(self._a)
+        f = self._map(self._a, self.jaw_opening)
         self._p = f + (self._p - f) * math.exp(-h / self.tau_face)
         k = segment_at(self._targets, current_time + h)
         if k != self._k:            # publish the target of the window that starts now
