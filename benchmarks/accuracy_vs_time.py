@@ -3,7 +3,7 @@
     python benchmarks/accuracy_vs_time.py [--quick] [--duration S] [--out DIR]
                                           [--scheduler ADDRESS] [--workers 2]
                                           [--only LABEL,LABEL [--merge DIR]]
-                                          [--cost wall|cpu] [--replot DIR]
+                                          [--cost wall|cpu] [--replot DIR] [--list]
 
 Scene (`gesture`, the built-in scene open_round): transient, the generic face, teeth and lip contact on. LLSAN and DLI
 open the lips (0 to 0.8 over 0-0.04 s), then OOP and RIS round and retract them (OOP 0 to
@@ -12,7 +12,7 @@ every 5 ms. The lips stay apart (aperture 0.4 mm at rest, then opening), so lip/
 contact is built and searched but never closes; the lips press on the teeth. (A closing
 gesture would clamp the aperture at 0, which hides its error.)
 
-Runs (each an independent task of benchmarks.sweep; the default sweep):
+Runs (each an independent task of solver.sweep; the default sweep):
 * level study at the DEFAULT tolerances: coarse, medium, paper and fine half faces, all
   with two brick rows per layer through the thickness (rows = 2, the fine level's own),
   so that the levels refine the mesh in the plane alone; the fine one ("fine") is the
@@ -49,7 +49,7 @@ reference in lip aperture and in protrusion; err_mm is the larger of the two.
 Cost: wall time of Simulation.run() in the task (build time apart) on one core next to one
 other task; cpu_s, the worker's CPU time over it, is the wall time on an idle core (`--cost
 cpu` takes it for the front and plot where other jobs load the machine); peak memory of the
-task (VmHWM reset per task, see benchmarks/sweep.py); DOF; real-time factor rtf = wall time
+task (VmHWM reset per task, see solver/sweep.py); DOF; real-time factor rtf = wall time
 / simulated time (1 = real time).
 
 Level study: the generic-face runs that differ from the reference run in their level
@@ -71,6 +71,9 @@ is under a tenth of the smallest error measured here), LOOSE runs, and full face
 only; no fine level, no reference face. Exits with status 1 unless the error falls as the
 level rises (coarse > medium).
 
+--list runs nothing: it prints the runs of the sweep (or of --only), each with its
+reference, knobs and preset, and writes them to DIR/runs.csv.
+
 Output in DIR (default out/accuracy_vs_time[_quick]): accuracy_vs_time.csv (a row per run),
 records.json (each run's recorded outputs over time, by label), pareto.png (error against
 time, log scales, the front of the generic-face runs drawn and the presets labelled); the
@@ -88,7 +91,7 @@ import numpy as np
 
 if __package__ in (None, ""):                     # run as a script: the repository root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.sweep import Sweep  # noqa: E402
+from solver.sweep import Sweep  # noqa: E402
 from benchmarks.table import report  # noqa: E402
 from solver.terms.contact import PENALTY  # noqa: E402
 
@@ -252,8 +255,8 @@ def _cost_guess(s):
 
 
 def run_specs(sweep, specs, duration, progress=True):
-    """Run specs over `duration` s of the gesture on a benchmarks.sweep.Sweep; the sweep's
-    results (see benchmarks.sweep.run_task), in the order of specs."""
+    """Run specs over `duration` s of the gesture on a solver.sweep.Sweep; the sweep's
+    results (see solver.sweep.run_task), in the order of specs."""
     tasks = [{k: v for k, v in s.items() if k != "ref"} | {"duration": duration}
              for s in specs]
     return sweep.run(tasks, gesture(duration), progress)
@@ -479,6 +482,14 @@ def summary(table, out, title, cost="wall_s", quick=False):
     return falls
 
 
+def list_specs(specs, path):
+    """Print the runs (label, reference, preset, KNOBS) and save them as a CSV at path."""
+    table = [{"label": s["label"], "reference": s["ref"] or "-",
+              "fidelity": s.get("fidelity", ""), **{k: s[k] for k in KNOBS}} for s in specs]
+    mark_presets(table)
+    report(table, ["label", "reference", "fidelity", "preset", *KNOBS], path)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true",
@@ -502,6 +513,10 @@ def main(argv=None):
     ap.add_argument("--replot", type=Path, metavar="DIR",
                     help="no runs: the table, front and plot again from DIR's "
                          "accuracy_vs_time.csv (for instance with another --cost)")
+    ap.add_argument("--list", action="store_true",
+                    help="no runs: the runs of the sweep (with --only: those and their "
+                         "references), their references, knobs and presets, printed and "
+                         "written to OUT/runs.csv")
     args = ap.parse_args(argv)
     cost = f"{args.cost}_s"
     if args.replot:
@@ -529,6 +544,9 @@ def main(argv=None):
                            set(earlier))
         except ValueError as exc:
             ap.error(str(exc))
+    if args.list:
+        list_specs(specs, out / "runs.csv")
+        return 0
     specs = realtime_model_missing(specs, duration)
     with Sweep(args.scheduler, n_workers=args.workers) as sweep:
         print(f"{len(specs)} runs of {duration} s of the gesture on "

@@ -4,9 +4,9 @@
                                    [--linear-solver auto|pardiso|superlu] [--profile]
                                    [--md FILE]
 
-Scene (`gesture`): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held to 0.3 s,
-lip and teeth contact on, lip aperture and protrusion recorded every 10 ms, at the
-`balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: substep error
+Scene (solver.gestures.gesture): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s,
+held to 0.3 s, lip and teeth contact on, lip aperture and protrusion recorded every 10 ms,
+at the `balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: substep error
 5e-2 mm, substeps up to 5 ms, Newton 1e-4 on the residual and 1e-2 mm on the last update)
 on
 
@@ -63,32 +63,19 @@ from pathlib import Path
 if __package__ in (None, ""):                     # run as a script: the repository root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.table import report  # noqa: E402
+from solver.gestures import gesture  # noqa: E402
 
 REFERENCE_FACE = Path(os.environ.get(
     "FACEFMU_REFERENCE_FACE",
     Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
 DURATION, QUICK = 0.3, 0.05                       # s
+GROUPS = ("transient", "newton", "damping", "contact", "lips", "teeth")     # of --set
 CASES = {"a": dict(anatomy=str(REFERENCE_FACE), half=False),
          "b": dict(anatomy="generic", level="paper", rows=1, half=True)}
 TARGETS = {"a": 27.0, "b": 15.0}                 # s wall for 0.3 s
 # the options of each path: NewtonOptions fields and Transient attributes
 PATHS = {"old": {"newton": dict(reuse=False), "transient": {}},
          "new": {"newton": {}, "transient": {}}}
-
-
-def gesture(duration=DURATION, contact="both"):
-    """The benchmark scene, as a dict for solver.scene.parse_scene; contact: which contact
-    terms ('both', 'teeth', 'lips', 'none')."""
-    def ramp(m, to):
-        return {"muscle": m, "kind": "ramp", "start": 0.0, "end": 0.15, "to": to}
-    return {"scene": {"name": "fast_path_gesture", "analysis": "transient",
-                      "duration": duration, "fidelity": "balanced",
-                      "description": "OOP + RIS rounding with lip and teeth contact"},
-            "muscles": {"driven": ["OOP", "RIS"]},
-            "effects": {"lip_contact": contact in ("both", "lips"),
-                        "teeth_contact": contact in ("both", "teeth")},
-            "outputs": {"record": ["lip_aperture", "lip_protrusion"], "interval": 0.01},
-            "schedule": [ramp("OOP", 1.0), ramp("RIS", 0.5)]}
 
 
 def build(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
@@ -110,7 +97,7 @@ def build(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
 
 
 def _knob_targets(sim, key):
-    """The objects that a --set KEY addresses."""
+    """The objects that a --set KEY addresses (its group one of GROUPS)."""
     group = key.split(".", 1)[0]
     if group == "transient":
         return [sim.integrator]
@@ -120,17 +107,18 @@ def _knob_targets(sim, key):
         return [sim.integrator.damping]
     if group == "contact":
         return list(sim.contact)
-    if group in ("lips", "teeth"):
-        return [t for t in sim.contact if ("teeth" in t.name) == (group == "teeth")]
-    raise SystemExit(f"--set {key}: the group must be transient, newton, damping, contact, "
-                     "lips or teeth")
+    return [t for t in sim.contact if ("teeth" in t.name) == (group == "teeth")]
 
 
 def parse_knob(text):
-    """'group.name=value' -> ('group.name', value as int, float, bool or str)."""
+    """'group.name=value' -> ('group.name', value as int, float, bool or str); the group
+    one of GROUPS."""
     key, sep, raw = text.partition("=")
     if not sep or "." not in key:
         raise argparse.ArgumentTypeError(f"{text!r}: expected group.name=value")
+    if key.split(".", 1)[0] not in GROUPS:
+        raise argparse.ArgumentTypeError(f"{text!r}: the group must be one of "
+                                         f"{', '.join(GROUPS)}")
     for cast in (int, float):
         try:
             return key, cast(raw)

@@ -12,7 +12,7 @@ drives all ten muscles, transient, with lip and teeth contact, on the generic fa
 scene's full-order model at the realtime knobs (solver.fidelity.REDUCED: coarse generic
 half face) and cached in the user cache (solver.rom.store; the path is printed), where
 `Simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
-a dask LocalCluster (benchmarks.sweep.Sweep, `--workers` one-thread processes) or a
+a dask LocalCluster (solver.sweep.Sweep, `--workers` one-thread processes) or a
 running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the steps.
 
 --accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced and the
@@ -44,7 +44,7 @@ def train_main(args):
               max_wall=args.max_wall, budget=args.budget)
     if args.no_dask:
         return train(scene, **kw)
-    from benchmarks.sweep import Sweep
+    from solver.sweep import Sweep
     with Sweep(args.scheduler, n_workers=args.workers) as sweep:
         sweep.warmup(scene)
         return train(scene, client=sweep.client, **kw)

@@ -69,12 +69,12 @@ REFERENCE_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4,
 
 
 def gesture_both_ways(option, duration, count):
-    """benchmarks/fast_path.py's lip gesture on the coarse half face (lip and teeth
+    """The lip gesture (solver.gestures) on the coarse half face (lip and teeth
     contact) for duration s, with NewtonOptions.option off and on: {on: (count(sim) after
     the run, the recorded rows)}. At REFERENCE_BALANCED (substeps 1e-2 mm, Newton 1e-6 and
     1e-4 mm), tighter than `balanced`: the runs must agree to a small multiple of Newton's
     last update."""
-    from benchmarks.fast_path import gesture
+    from solver.gestures import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     runs = {}

@@ -765,7 +765,7 @@ def test_reference_face_gesture_passes_where_a_lip_slave_met_its_patchs_edge(fac
     t = 0.184 s. With 24 the run passes with at most one cutback (one, at t = 0.15 s,
     where a slave's nearest triangle turns across a concave edge). At `balanced`'s substep
     error tolerance (5e-2 mm) it passes with none, and still fails with 12 candidates."""
-    from benchmarks.fast_path import gesture
+    from solver.gestures import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     sim = Simulation(parse_scene(gesture(0.2)), anatomy=str(DATA), half=False)

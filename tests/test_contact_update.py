@@ -182,7 +182,7 @@ def test_newton_with_the_update_reaches_the_same_contact_state(solver_name):
 
 
 def test_lip_gesture_takes_fewer_factorizations_with_the_update():
-    from benchmarks.fast_path import gesture
+    from solver.gestures import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
 

@@ -1,8 +1,10 @@
 """The fast full-order path (issue 10): factorization reuse, warm starts, BLAS threads."""
 
+import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -352,7 +354,7 @@ def test_partial_refresh_assembles_only_contact_within_a_call_and_reaches_the_sa
     full assembly at every factorization; with partial_reach 0 every refactorization away
     from the full assembly's state assembles everything. (Without Krylov directions, which
     assemble the contact's tangent for their own use.)"""
-    from benchmarks.fast_path import gesture
+    from solver.gestures import gesture
     from solver.scene import parse_scene
     from solver.simulation import Simulation
     runs = {}
@@ -381,51 +383,6 @@ def test_partial_refresh_assembles_only_contact_within_a_call_and_reaches_the_sa
         assert abs(a["lip_aperture"] - b["lip_aperture"]) < 1e-4
 
 
-def test_benchmark_knobs_parse_and_reach_their_objects():
-    """benchmarks/fast_path.py --set: values typed, each group reaches its objects, a
-    wrong group or a missing '=' is refused."""
-    import argparse
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.fast_path import _knob_targets, parse_knob
-    assert parse_knob("transient.fixed_step=0.005") == ("transient.fixed_step", 0.005)
-    assert parse_knob("newton.max_iter=30") == ("newton.max_iter", 30)
-    assert parse_knob("transient.predictor=none") == ("transient.predictor", "none")
-    assert parse_knob("transient.even_steps=true") == ("transient.even_steps", True)
-    with pytest.raises(argparse.ArgumentTypeError):
-        parse_knob("tol=0.01")
-
-    class Sim:                                   # the attributes _knob_targets reads
-        integrator = type("I", (), {"damping": "D"})()
-        face = type("F", (), {"model": type("M", (), {"newton_options": "N"})()})()
-        contact = ["C1", "C2"]
-    sim = Sim()
-    assert _knob_targets(sim, "transient.tol") == [sim.integrator]
-    assert _knob_targets(sim, "newton.rtol") == ["N"]
-    assert _knob_targets(sim, "damping.refresh") == ["D"]
-    assert _knob_targets(sim, "contact.smoothing") == ["C1", "C2"]
-    with pytest.raises(SystemExit):
-        _knob_targets(sim, "mesh.level")
-
-
-def test_benchmark_counts_steps_and_keeps_the_deepest_penetration():
-    """benchmarks/fast_path.py's per-record tally: statistics summed over steps, the
-    deepest penetration of any contact term kept (not the last one)."""
-    import sys
-    from pathlib import Path
-    from types import SimpleNamespace as NS
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.fast_path import _count
-    sim = NS(t=0.01, last=NS(substeps=2, newton_iterations=5, cutbacks=1),
-             contact=[NS(max_penetration=0.02), NS(max_penetration=0.05)])
-    totals = {"substeps": 0, "newton_its": 0, "cutbacks": 0, "penetration_mm": 0.0}
-    _count(sim, totals)
-    sim.contact[1].max_penetration = 0.01
-    _count(sim, totals)
-    assert totals == {"substeps": 4, "newton_its": 10, "cutbacks": 2, "penetration_mm": 0.05}
-
-
 @pytest.mark.parametrize("refresh, most", [(0.0, None), (np.inf, 2)])
 def test_substeps_share_a_factorization_only_while_the_damping_matrix_is_held(refresh, most):
     """Newton's key is the substep size (to rounding: the last substep of a caller step
@@ -444,19 +401,43 @@ def test_substeps_share_a_factorization_only_while_the_damping_matrix_is_held(re
         assert stats.factorizations <= most
 
 
-def test_benchmark_probe_times_a_fixed_workload():
-    """benchmarks/fast_path.py's machine gauge: a positive time where PARDISO installs
-    (NaN where not), smaller for a smaller workload."""
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.fast_path import probe
-    from solver.linsolve import available
-    t = probe(n=8, reps=1)
-    if "pardiso-single" not in available():
-        assert np.isnan(t)
-        return
-    assert 0.0 < t < probe(n=24, reps=1)
+FAST_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fast_path.py"
+
+
+def _fast_path(tmp_path, *args):
+    return subprocess.run([sys.executable, str(FAST_PATH), *args], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=600)
+
+
+@pytest.mark.parametrize("knob, message", [("tol=0.01", "expected group.name=value"),
+                                           ("newton.rtol", "expected group.name=value"),
+                                           ("mesh.level=1", "the group must be one of")])
+def test_fast_path_refuses_a_knob_without_group_or_value_or_of_another_group(tmp_path, knob,
+                                                                             message):
+    run = _fast_path(tmp_path, "--set", knob)
+    assert run.returncode == 2 and message in run.stderr
+
+
+def test_fast_path_tallies_a_tiny_run_with_its_knobs(tmp_path):
+    """benchmarks/fast_path.py on 0.02 s of case b: the knobs typed (int, float, bool) and
+    applied (transient.fixed_step 5 ms: two substeps per 10 ms record, summed over the two
+    records; newton.reuse false: a factorization per Newton iteration), a row with the
+    penetration and the machine gauge before and after, the records saved."""
+    run = _fast_path(tmp_path, "--only", "b", "--paths", "new", "--duration", "0.02",
+                     "--set", "transient.fixed_step=0.005", "--set", "newton.reuse=false",
+                     "--set", "newton.max_iter=30", "--set", "lips.smoothing=0.0",
+                     "--records", "records.json", "--md", "table.md")
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    header, _, values = (tmp_path / "table.md").read_text().splitlines()
+    row = dict(zip(header.split(" | "), values.split(" | ")))
+    assert row["set"] == ("transient.fixed_step=0.005 newton.reuse=False newton.max_iter=30 "
+                          "lips.smoothing=0.0")
+    assert int(row["substeps"]) == 4 and row["failed"] == "-"
+    assert int(row["factorizations"]) == int(row["newton_its"]) >= 4
+    assert float(row["penetration_mm"]) >= 0.0
+    assert len([float(x) for x in row["probe_s"].split(" / ")]) == 2
+    rec = json.loads((tmp_path / "records.json").read_text())
+    assert [round(r["time"], 6) for r in rec["b/new"]] == [0.0, 0.01, 0.02]
 
 
 def test_after_a_dropped_reused_step_a_call_tries_no_more_reused_directions(monkeypatch):

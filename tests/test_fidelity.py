@@ -1,5 +1,6 @@
 """Fidelity presets (API, scene files, command line, FMU), the dask sweep runner and the
-accuracy benchmark's level check (the check of `accuracy_vs_time.py --quick`).
+accuracy benchmark (benchmarks/accuracy_vs_time.py, run as a script): its runs, front,
+errors and level check.
 
 The sweep tests share one LocalCluster (two worker processes) for the module.
 """
@@ -20,11 +21,10 @@ from solver.simulation import Simulation
 from solver.terms.contact import PENALTY
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))                    # benchmarks/ is not installed
+ACCURACY = ROOT / "benchmarks" / "accuracy_vs_time.py"
 
 pytest.importorskip("dask.distributed")
-from benchmarks import accuracy_vs_time as avt  # noqa: E402
-from benchmarks.sweep import Sweep  # noqa: E402
+from solver.sweep import Sweep  # noqa: E402
 
 TINY = {"level": "coarse", "half": True, "duration": 0.02, "interval": 0.01}
 
@@ -268,7 +268,7 @@ def sweep():
 
 def test_two_task_sweep_on_a_local_cluster_reports_each_run_with_its_own_costs(sweep):
     tasks = [{"label": "half", **TINY}, {"label": "full", **TINY, "half": False}]
-    half, full = sweep.run(tasks, avt.gesture(duration=0.02), progress=False)
+    half, full = sweep.run(tasks, "open_round", progress=False)
     assert (half["label"], full["label"]) == ("half", "full")
     assert half["error"] == full["error"] == ""
     assert 0 < half["ndof"] < full["ndof"]
@@ -284,68 +284,114 @@ def test_two_task_sweep_on_a_local_cluster_reports_each_run_with_its_own_costs(s
 
 def test_a_failing_task_reports_its_error_and_the_sweep_goes_on(sweep):
     bad, good = sweep.run([{"label": "bad", **TINY, "anatomy": "/nowhere"},
-                           {"label": "good", **TINY}], avt.gesture(duration=0.02),
-                          progress=False)
+                           {"label": "good", **TINY}], "open_round", progress=False)
     assert "/nowhere" in bad["error"]
     assert good["error"] == "" and good["ndof"] > 0
 
 
+def _accuracy(tmp_path, *args):
+    """benchmarks/accuracy_vs_time.py with args, in tmp_path: the finished process."""
+    return subprocess.run([sys.executable, str(ACCURACY), *args], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=1200)
+
+
+def _csv(path):
+    import csv
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
 @pytest.mark.slow                   # 66 s on a slow day: out of the default suite
-def test_quick_level_study_error_falls_as_the_level_rises(sweep):
-    """The check of `accuracy_vs_time.py --quick`: its level study (coarse and medium
-    against paper at the default tolerances) over its duration."""
-    specs = [s for s in avt.sweep_specs(quick=True) if s["label"] in LEVELS]
-    results = avt.run_specs(sweep, specs, avt.QUICK_DURATION, progress=False)
-    rows, rates, falls = avt.level_study(avt.evaluate(specs, results))
-    assert [r["level"] for r in rows] == ["coarse", "medium"]
-    assert falls, [(r["level"], r["err_mm"]) for r in rows]
-    assert rates["err_mm"] > 0
+def test_quick_benchmark_exits_0_as_the_error_falls_as_the_level_rises(tmp_path):
+    """`accuracy_vs_time.py --quick`: coarse and medium against paper at the default
+    tolerances; it exits 1 unless the error falls as the level rises."""
+    run = _accuracy(tmp_path, "--quick", "--out", "quick")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "error falls as the level rises: yes" in run.stdout
+    assert (tmp_path / "quick" / "pareto.png").stat().st_size > 0
+    assert (tmp_path / "quick" / "accuracy_vs_time.csv").read_text().count("\n") > 5
 
 
-@pytest.mark.slow
-def test_quick_benchmark_runs_and_exits_0(tmp_path):
-    assert avt.main(["--quick", "--out", str(tmp_path)]) == 0
-    assert (tmp_path / "pareto.png").stat().st_size > 0
-    assert (tmp_path / "accuracy_vs_time.csv").read_text().count("\n") > 5
+# -------------------------------------------------------------- the accuracy benchmark
+
+def test_every_preset_is_a_run_of_the_default_sweep_and_tolerance_runs_tighten_one_knob(
+        tmp_path):
+    """--list (no runs): every fidelity preset is a run of the default sweep; the
+    `balanced at substep_tol X` and `fast at ...` runs differ from their preset's run in a
+    tighter substep tolerance alone."""
+    run = _accuracy(tmp_path, "--list", "--out", "out")
+    assert run.returncode == 0, run.stderr
+    runs = _csv(tmp_path / "out" / "runs.csv")
+    presets = {r["preset"]: r for r in runs if r["preset"] in FIDELITIES}
+    assert set(presets) == set(FIDELITIES)
+    knobs = [k for k in runs[0] if k not in ("label", "reference", "fidelity", "preset")]
+    tightened = [r for r in runs if " at substep_tol " in r["label"]]
+    assert {r["label"].split()[0] for r in tightened} == {"balanced", "fast"}
+    for r in tightened:
+        own = presets[r["label"].split()[0]]
+        assert [k for k in knobs if r[k] != own[k]] == ["substep_tol"]
+        assert float(r["substep_tol"]) < float(own["substep_tol"])
+        assert r["reference"] == "fine"
 
 
-# -------------------------------------------------------------- benchmark helpers
+def test_replot_marks_the_front_fits_the_rate_and_names_the_presets(tmp_path):
+    """--replot of a table: the Pareto front of the generic-face runs (a run slower and
+    less accurate than another is off it), the rate p of err ~ h^p over the level study
+    (errors 0.01 h^2: p = 2) and the run at a preset's knobs named after it."""
+    def row(label, level, h, wall, err, **knobs):
+        return {"label": label, "fidelity": "", "anatomy": "generic", "level": level,
+                "rows": 2, "half": True, "substep_tol": 1e-3, "max_substep": 5e-3,
+                "newton_rtol": 1e-6, "newton_utol": 1e-5, "lip_penalty": PENALTY,
+                "formulation": "mean_dilatation", "stiffening": True, "ndof": 100,
+                "h_mm": h, "wall_s": wall, "cpu_s": wall, "rtf": wall / 0.1,
+                "peak_mb": 10.0, "reference": "fine", "error": "",
+                **({"err_aperture_mm": err, "err_protrusion_mm": err / 2, "err_mm": err}
+                   if err is not None else {}), **knobs}
+    balanced = {k: v for k, v in PRESETS["balanced"].items() if k != "level"}
+    table = [row("fine", "fine", 0.5, 100.0, None, reference="-"),
+             row("coarse 2 rows", "coarse", 4.0, 1.0, 0.16),
+             row("medium 2 rows", "medium", 2.0, 4.0, 0.04),
+             row("paper 2 rows", "paper", 1.0, 16.0, 0.01),
+             row("like balanced", "medium", 2.0, 5.0, 0.035, **balanced),
+             row("coarse loose", "coarse", 4.0, 2.0, 0.5, rows=1, substep_tol=1e-2)]
+    import csv
+    (tmp_path / "old").mkdir()
+    with open(tmp_path / "old" / "accuracy_vs_time.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in table for k in r)))
+        w.writeheader()
+        w.writerows(table)
+    run = _accuracy(tmp_path, "--replot", "old")
+    assert run.returncode == 0, run.stderr
+    assert "err_aperture_mm 2.00, err_protrusion_mm 2.00, err_mm 2.00" in run.stdout
+    assert "error falls as the level rises: yes" in run.stdout
+    out = {r["label"]: r for r in _csv(tmp_path / "old" / "accuracy_vs_time.csv")}
+    assert {k for k, r in out.items() if r["pareto"] == "True"} == {
+        "coarse 2 rows", "medium 2 rows", "paper 2 rows", "like balanced"}
+    assert out["coarse loose"]["pareto"] == "False"
+    assert out["like balanced"]["preset"] == "balanced"
+    assert (tmp_path / "old" / "pareto.png").stat().st_size > 0
 
-def test_errors_are_taken_against_each_runs_reference():
-    def result(values):
-        return {"error": "", "ndof": 3, "wall_s": 1.0, "cpu_s": 1.0, "rtf": 10.0,
-                "peak_mb": 1.0, "volume_mm3": 8.0, "bricks": 1,
-                "rows": [{"time": 0.01 * i, "lip_aperture": a, "lip_protrusion": p}
-                         for i, (a, p) in enumerate(values)]}
 
-    specs = [avt.spec("ref", None), avt.spec("a", "ref"), avt.spec("b", "bad"),
-             avt.spec("bad", None)]
-    results = [result([(1, 0), (2, 1)]), result([(1.5, 0), (2, 0.75)]),
-               result([(1, 0), (2, 1)]), {"error": "boom"}]
-    ref, a, b, bad = avt.evaluate(specs, results)
-    assert "err_mm" not in ref and ref["h_mm"] == 2.0
-    assert (a["err_aperture_mm"], a["err_protrusion_mm"], a["err_mm"]) == (0.5, 0.25, 0.5)
-    assert "boom" in b["error"] and "err_mm" not in b
-    assert bad["error"] == "boom"
-
-
-def test_pareto_mask_and_rate_fit():
-    assert avt.pareto_mask([1, 2, 3, 4], [5, 1, 2, 0.5]).tolist() == [True, True, False, True]
-    p, c = avt.fit_rate([1.0, 2.0, 4.0], [0.3, 1.2, 4.8])
-    assert p == pytest.approx(2.0) and c == pytest.approx(0.3)
-
-
-def test_every_preset_is_a_run_of_the_default_sweep():
-    specs = avt.sweep_specs(quick=False)
-    table = [{k: s[k] for k in ("label", *avt.KNOBS)} for s in specs]
-    avt.mark_presets(table)
-    assert {r.get("preset") for r in table} >= set(FIDELITIES)
-
-
-def test_tolerance_runs_differ_from_their_preset_in_a_tighter_substep_tolerance_alone():
-    specs = avt.tolerance_specs("fine")
-    assert {s["label"].split()[0] for s in specs} == {"balanced", "fast"}
-    for s in specs:
-        knobs = avt.with_rows({**avt.DEFAULT, **PRESETS[s["label"].split()[0]]})
-        assert {k for k in avt.KNOBS if s[k] != knobs[k]} == {"substep_tol"}
-        assert s["substep_tol"] < knobs["substep_tol"] and s["ref"] == "fine"
+def test_a_runs_errors_are_taken_against_its_reference(tmp_path):
+    """--only with --merge: a run (coarse loose, 0.01 s) against its reference (fine)
+    taken from an earlier sweep's records, not run again: the errors are the largest
+    differences over the record times."""
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    ref = [{"time": round(0.005 * i, 6), "lip_aperture": 1.0 + 0.1 * i,
+            "lip_protrusion": -0.01 * i} for i in range(3)]
+    (earlier / "records.json").write_text(json.dumps({"fine": ref}))
+    (earlier / "accuracy_vs_time.csv").write_text("label,reference,error\n")
+    run = _accuracy(tmp_path, "--duration", "0.01", "--workers", "1", "--only",
+                    "coarse loose", "--merge", "earlier", "--out", "out")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    rows = json.loads((tmp_path / "out" / "records.json").read_text())["coarse loose"]
+    assert [r["time"] for r in rows] == pytest.approx([r["time"] for r in ref])
+    (row,) = _csv(tmp_path / "out" / "accuracy_vs_time.csv")
+    assert (row["label"], row["reference"], row["error"]) == ("coarse loose", "fine", "")
+    for key, col in (("lip_aperture", "err_aperture_mm"),
+                     ("lip_protrusion", "err_protrusion_mm")):
+        want = max(abs(a[key] - b[key]) for a, b in zip(rows, ref))
+        assert float(row[col]) == pytest.approx(want)
+    assert float(row["err_mm"]) == max(float(row["err_aperture_mm"]),
+                                       float(row["err_protrusion_mm"]))

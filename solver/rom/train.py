@@ -8,7 +8,7 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    displacements are recorded every `interval` s. The first 2 x (driven muscles) runs
    each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
    at U(0.1, 1); a run that takes longer than max_wall keeps the snapshots it has. Runs are independent tasks: through a
-   dask client (benchmarks.sweep.Sweep, `snapshot_task`) or in this process.
+   dask client (solver.sweep.Sweep, `snapshot_task`) or in this process.
 2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy.
 3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
    basis, u = V V^T u_j, with their activations (tissue + stiffening per brick).

@@ -1,6 +1,6 @@
 """Independent simulations in parallel through dask.distributed: a sweep runner.
 
-    from benchmarks.sweep import Sweep
+    from solver.sweep import Sweep
     tasks = [{"label": "coarse", "level": "coarse"}, {"label": "paper", "level": "paper"}]
     with Sweep() as sweep:                      # LocalCluster: 2 one-thread worker processes
         results = sweep.run(tasks, scene="rounding_u")
@@ -13,8 +13,8 @@ of an ANSYS face folder as the workers see it). The scene is a built-in name, a 
 or a dict as solver.scene.parse_scene takes; it ships as plain data with every task. Each
 task runs in a worker process (`run_task`) and returns plain data with its own timing and
 peak memory. A task that raises, or whose worker dies, comes back with its error message
-instead of failing the sweep. This module imports no solver code: the client process stays
-light, and a worker imports the solver with its first task.
+instead of failing the sweep. A worker imports the simulation code with its first task;
+dask.distributed comes with the package's `sweep` extra.
 
 Workers are processes with one task at a time: the solver holds the GIL between numba
 kernels. numba runs `numba_threads` threads per task (set in the task, so this holds on any
@@ -28,9 +28,8 @@ the first sweep `Sweep.warmup` runs a 10 ms coarse task on one worker (which com
 the cache if it is cold), then on the others (which load from it): no worker compiles in a
 timed task and two workers never compile the same kernels at once.
 
-Remote clusters: the workers must import `benchmarks.sweep` (start them from the
-repository root or with it on PYTHONPATH) and have the solver installed; paths in tasks
-(anatomy folders, scene files) are read by the workers.
+Remote clusters: the workers must have the package installed (with its `sweep` extra);
+paths in tasks (anatomy folders, scene files) are read by the workers.
 
 Peak memory (peak_mb): measured in the worker on Linux from /proc/self/status: the peak
 resident set (VmHWM) is reset before each task by writing 5 to /proc/self/clear_refs and
