@@ -188,12 +188,14 @@ class Model:
                 res.reason = rep.reason
                 if run_of_cuts > max_cutbacks:
                     sysm.lam = 0.0
+                    sysm.restore(u_start)
                     res.reason = (f"load step at lam = {lam_try:.4g} failed after "
                                   f"{max_cutbacks} cutbacks: {rep.reason}")
                     return res
                 dlam *= 0.5
                 if dlam < min_increment:
                     sysm.lam = 0.0
+                    sysm.restore(u_start)
                     res.reason = (f"load step from lam = {lam:.6g} failed: the increment "
                                   f"fell below {min_increment:g} ({rep.reason})")
                     return res

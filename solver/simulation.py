@@ -227,9 +227,7 @@ class Simulation:
         self.face.activation.start = np.array(state["activation"], dtype=float)
         self.face.activation.target = self.face.activation.start.copy()
         self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
-        for term in self.contact:
-            if hasattr(term, "reset"):
-                term.reset()
+        self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
         if self.integrator is not None:
             self.integrator.v = np.array(state["v"], dtype=float).reshape(-1, 3)
             self.integrator.h = float(state["h"])

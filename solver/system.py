@@ -18,12 +18,7 @@ class System:
         self.terms = list(terms)
         self.ndof = 3 * n_nodes
         self.n_nodes = n_nodes
-        blocks, self._ids = [], []
-        for t in self.terms:
-            b = list(t.blocks())
-            self._ids.append(list(range(len(blocks), len(blocks) + len(b))))
-            blocks += b
-        self.pattern = Pattern(self.ndof, blocks)
+        self._build_pattern()
         self.set_constraints(prescribed)
         self.lam = 1.0
         self.t = 0.0
@@ -31,6 +26,34 @@ class System:
         self.counters = {"assemblies": 0, "residuals": 0, "partial_tangents": 0,
                          "nonsmooth_residuals": 0}
         self.term_seconds = {t.name: 0.0 for t in self.terms}     # time spent in each term
+
+    def _build_pattern(self):
+        blocks, self._ids = [], []
+        for t in self.terms:
+            b = list(t.blocks())
+            self._ids.append(list(range(len(blocks), len(blocks) + len(b))))
+            blocks += b
+        self.pattern = Pattern(self.ndof, blocks)
+        self._generations = [getattr(t, "blocks_generation", 0) for t in self.terms]
+
+    def sync(self):
+        """Rebuild the sparsity pattern (and the constraint reduction) where a term's
+        blocks changed (its blocks_generation); returns whether it did."""
+        if [getattr(t, "blocks_generation", 0) for t in self.terms] == self._generations:
+            return False
+        self._build_pattern()
+        self.set_constraints(self.prescribed)
+        return True
+
+    def restore(self, u):
+        """Put the terms whose blocks follow the converged state (follow_state) at u
+        (ndof,), as after a commit there, and sync: a state restored (a failed step,
+        set_state) then has the blocks it had when it was reached."""
+        st = self.state(u)
+        for t in self.terms:
+            if callable(getattr(t, "follow_state", None)):
+                t.follow_state(st.u)
+        return self.sync()
 
     def set_constraints(self, prescribed):
         self.prescribed = np.asarray(sorted(prescribed), dtype=np.int64)
@@ -87,6 +110,7 @@ class System:
         st = self.state(u)
         for t in self.terms:
             t.commit(st)
+        self.sync()
 
     def term(self, name):
         for t in self.terms:

@@ -232,6 +232,7 @@ class Transient:
                     self.v = v0.reshape(-1, 3)
                     self.dissipated = d0
                     sysm.lam = 0.0
+                    sysm.restore(u0)
                     return stats
                 h_prop = h / 4
                 continue

@@ -154,9 +154,7 @@ class ReducedSimulation(Simulation):
         self.integrator.v = self.op.displacement(v).copy()
         self.integrator.t = self.t
         self.face.activation.start = activation_start
-        for term in self.contact:
-            if hasattr(term, "reset"):
-                term.reset()
+        self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
         self.mode = "full"
 
     def step(self, t_end):

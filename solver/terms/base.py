@@ -12,7 +12,9 @@ and then, for each state, adds its forces and stiffness:
 (add_block, residual, energy, need_k). A term raises InvertedElement when the state is
 not admissible, so that Newton's line search or the load stepping can back off.
 Terms that hold a load path (prescribed values that ramp with the load factor) implement
-``commit()``, called when a load step has converged.
+``commit()``, called when a load step has converged. A term whose blocks follow the
+converged state (contact candidates) changes them in ``commit()`` or ``follow_state(u)`` and
+increments its ``blocks_generation``: the System then rebuilds its sparsity pattern.
 """
 
 from dataclasses import dataclass, field
@@ -44,6 +46,7 @@ class Term:
     name = "term"
     nonsmooth = False       # its force switches on and off (contact); then touching():
                             # (n,) bool, the nodes it pushed on at its last evaluation
+    blocks_generation = 0   # incremented when blocks() change
 
     def blocks(self):
         return []

@@ -156,6 +156,8 @@ from ..kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from .base import Term
 
 PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
+TEETH_PENALTY = 2.0        # N/mm^3: lips and cheeks on the rigid teeth (BUC at 1 presses a
+                           # cheek node of 5 mm^2 with 0.35 N: 0.035 mm deep)
 EDGE_FADE = 1.0            # mm: lip contact fades out over this distance beyond a free edge
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
@@ -587,16 +589,21 @@ class LipContact(_Report, Term):
                    set): surface edges between two of them are mirrored, not free
     fade           mm: beyond a free edge (of the surface or of a slave's candidates) the
                    penalty fades over this length
+    follow         the candidate pairs follow the converged state: at every commit (and
+                   follow_state) they are picked again as at rest, at the current positions
+    behind         mm: a candidate triangle may have the slave this far behind its plane
+                   (default depth: a penetrating slave keeps the triangle it is in)
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
                  radius=6.0, max_pairs=48, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
-                 mirror_nodes=None, fade=EDGE_FADE):
+                 mirror_nodes=None, fade=EDGE_FADE, follow=True, behind=None):
         _check(penalty, smoothing)
         if not fade > 0:
             raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
         self.name, self.mesh, self.fade = name, mesh, float(fade)
         self.depth, self.smoothing = float(depth), float(smoothing)
+        self.behind = self.depth if behind is None else float(behind)
         self._penalty = float(penalty)
         n = mesh.n_nodes
         mirror = None
@@ -618,25 +625,20 @@ class LipContact(_Report, Term):
         self.normals = [_Normals(t, first, ext).update(x0) for t in surf]
         areas = [tributary_areas(mesh.nodes, f, n) for f in (upper_faces, lower_faces)]
         real = [np.unique(np.asarray(f)) for f in (upper_faces, lower_faces)]
+        self.radius, self.max_pairs, self.follow = float(radius), int(max_pairs), follow
+        self._corners, self._weights = corners, weights
         self.passes, dropped = [], []
         for s, m in ((0, 1), (1, 0)):
             slaves = np.setdiff1d(real[s], real[m])
-            slaves, ptr, pair_tri, pair_free, out = self._pairs(x0, slaves, s, m, radius,
-                                                                max_pairs, rest_tolerance)
-            dropped.append(out)
-            p = len(pair_tri)
-            owner = np.repeat(np.arange(len(slaves)), np.diff(ptr))
-            self.passes.append({
-                "slaves": slaves, "master": m, "ptr": ptr, "pair_tri": pair_tri,
-                "pair_free": pair_free,
-                "k": penalty * areas[s][slaves],
-                # the pair's real nodes (slave, the 4 of its triangle's quad) and the
-                # triangle's vertices in terms of them (pair_weights (p, 3, 4))
-                "nodes": np.column_stack([slaves[owner], corners[m][pair_tri]]),
-                "pair_weights": np.ascontiguousarray(weights[m][pair_tri]),
-                "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
-                "active": -np.ones(len(slaves), dtype=np.int64),
-                "kept": -np.ones(len(slaves), dtype=np.int64)})
+            ptr, pair_tri, pair_free = self._pairs(x0, slaves, s, m)
+            gap = self._rest_gaps(x0, slaves, m, ptr, pair_tri)
+            keep = (np.diff(ptr) > 0) & ~(gap < -rest_tolerance)
+            dropped.append(slaves[(gap < -rest_tolerance)])
+            slaves = slaves[keep]
+            q = {"slaves": slaves, "slave_surface": s, "master": m,
+                 "k": penalty * areas[s][slaves]}
+            self._set_pairs(q, *self._pairs(x0, slaves, s, m))
+            self.passes.append(q)
         self.dropped = np.concatenate(dropped)
         self.slaves = np.concatenate([q["slaves"] for q in self.passes])
         s = len(self.slaves)
@@ -661,10 +663,58 @@ class LipContact(_Report, Term):
         x = self.mesh.nodes + u
         return np.vstack([x, x[self.centres].mean(axis=1)])
 
-    def _pairs(self, x, slaves, s, m, radius, max_pairs, rest_tolerance):
-        """Candidate pairs at rest (positions x (n + c, 3)) of slaves (nodes of surface s)
-        on the triangles of surface m: (kept slaves, ptr, pair triangles, pair_free,
-        dropped slaves)."""
+    def _set_pairs(self, q, ptr, pair_tri, pair_free):
+        """Put the candidate pairs (ptr, pair triangles, pair_free) in the pass q, with the
+        pair's real nodes (slave, the 4 of its triangle's quad) and the triangle's vertices
+        in terms of them (pair_weights (p, 3, 4)); no pair active."""
+        slaves, m = q["slaves"], q["master"]
+        owner = np.repeat(np.arange(len(slaves)), np.diff(ptr))
+        p = len(pair_tri)
+        q.update({"ptr": ptr, "pair_tri": pair_tri, "pair_free": pair_free,
+                  "nodes": np.column_stack([slaves[owner], self._corners[m][pair_tri]]),
+                  "pair_weights": np.ascontiguousarray(self._weights[m][pair_tri]),
+                  "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
+                  "active": -np.ones(len(slaves), dtype=np.int64),
+                  "kept": -np.ones(len(slaves), dtype=np.int64)})
+
+    def follow_state(self, u):
+        """The candidate pairs of the configuration u (n, 3) (follow: the pairs that
+        _pairs picks there, as at rest); a change increments blocks_generation."""
+        if not self.follow:
+            return
+        x = self.positions(u)
+        changed = False
+        for q in self.passes:
+            self.normals[q["master"]].update(x)
+            self.normals[q["slave_surface"]].update(x)
+            ptr, tri, free = self._pairs(x, q["slaves"], q["slave_surface"], q["master"])
+            if not (np.array_equal(ptr, q["ptr"]) and np.array_equal(tri, q["pair_tri"])
+                    and np.array_equal(free, q["pair_free"])):
+                self._set_pairs(q, ptr, tri, free)
+                changed = True
+        if changed:
+            self.blocks_generation += 1
+
+    def commit(self, state):
+        self.follow_state(state.u)
+
+    def _rest_gaps(self, x, slaves, m, ptr, pair_tri):
+        """(s,) the slaves' signed gaps to their candidates at positions x."""
+        ns = len(slaves)
+        gap = np.empty(ns)
+        surface_contact(x, slaves, np.zeros(ns), self.normals[m].tris, ptr, pair_tri,
+                        *self.normals[m].args(), np.inf, 0.0, False,
+                        np.zeros((len(pair_tri), 12)), np.zeros((len(pair_tri), 12, 12)),
+                        gap, np.zeros(ns), -np.ones(ns, dtype=np.int64),
+                        -np.ones(ns, dtype=np.int64))
+        return gap
+
+    def _pairs(self, x, slaves, s, m):
+        """Candidate pairs at positions x (n + c, 3) of slaves (nodes of surface s) on the
+        triangles of surface m: the max_pairs nearest within radius that the slave's
+        surface faces and that the slave is not behind by more than depth; (ptr (s + 1,),
+        pair triangles (p,), pair_free (p, 3))."""
+        radius, max_pairs = self.radius, self.max_pairs
         tris, fn = self.normals[m].tris, self.normals[m].fn
         cen = x[tris].mean(axis=1)
         reach = np.linalg.norm(x[tris] - cen[:, None], axis=2).max()
@@ -677,29 +727,18 @@ class LipContact(_Report, Term):
         ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
         inc_p, inc_t = _incidence(st, len(x))
         facing = _min_facing(inc_p, inc_t, sn, slaves[si], fn[ti])
-        ok = (d2 <= radius ** 2) & (facing < 0) & (ahead > -FACING_TOLERANCE)
+        ok = (d2 <= radius ** 2) & (facing < 0) & (ahead > -FACING_TOLERANCE - self.behind)
         order = np.lexsort((d2[ok], si[ok]))                  # by slave, nearest first
         si, ti = si[ok][order], ti[ok][order]
         first = np.arange(len(si)) - np.searchsorted(si, si) < max_pairs
         si, ti = si[first], ti[first]
         ptr = np.searchsorted(si, np.arange(len(slaves) + 1))
-        ns = len(slaves)
-        gap = np.empty(ns)
-        surface_contact(x, slaves, np.zeros(ns), tris, ptr, ti, *self.normals[m].args(),
-                        np.inf, 0.0, False, np.zeros((len(ti), 12)),
-                        np.zeros((len(ti), 12, 12)), gap, np.zeros(ns),
-                        -np.ones(ns, dtype=np.int64), -np.ones(ns, dtype=np.int64))
-        inside = gap < -rest_tolerance
-        keep = (np.diff(ptr) > 0) & ~inside
-        new = np.cumsum(keep) - 1
-        sel = keep[si]
         # an edge is free for a slave when it borders none of the slave's other candidates
         nbr = self.normals[m].topo.nbr[ti]                               # (p, 3)
         key = si * len(tris) + ti
         inner = np.isin(si[:, None] * len(tris) + nbr, key) | (nbr < 0)
         free = ~inner | self.normals[m].topo.free_edge[ti]
-        return (slaves[keep], np.searchsorted(new[si[sel]], np.arange(keep.sum() + 1)),
-                ti[sel], np.ascontiguousarray(free[sel]), slaves[inside])
+        return ptr, ti, np.ascontiguousarray(free)
 
     def blocks(self):
         return [q["nodes"] for q in self.passes]
@@ -816,9 +855,10 @@ def build_contact_terms(anatomy, lips=True, teeth=True, teeth_distance=3.0, rest
         nodes = np.setdiff1d(np.unique(mesh.boundary_faces()), mesh.node_sets.get("fixed", []))
         for name, surface in joined_surfaces(anatomy.rigid_surfaces).items():
             motion = _jaw_motion(anatomy.rigid_surfaces, surface, jaw)
+            teeth = dict({"penalty": TEETH_PENALTY}, **options)
             terms.append(RigidContact(mesh, nodes_near(mesh, nodes, surface, teeth_distance),
                                       surface, name=f"{name}_contact",
-                                      rest_offset=rest_offset, motion=motion, **options))
+                                      rest_offset=rest_offset, motion=motion, **teeth))
     if lips:
         mirror = mesh.node_sets["midsagittal"] if anatomy.half else None
         lip = dict(options, **({} if lip_penalty is None else {"penalty": lip_penalty}))
