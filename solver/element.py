@@ -20,7 +20,6 @@ NODE_XI = np.array(
 
 _g = 1.0 / np.sqrt(3.0)
 GAUSS_POINTS = NODE_XI * _g          # (8, 3): one point per octant
-GAUSS_WEIGHTS = np.ones(8)           # (8,)
 
 
 def shape_functions(xi):

@@ -199,7 +199,6 @@ class NewtonReport:
     reason: str = ""
     factorizations: int = 0
     stale_steps: int = 0            # reused factorizations' steps dropped for a new one
-    krylov_steps: int = 0           # directions by GMRES on a reused factorization
 
 
 def _direction(system, r, data, dup, lin):
@@ -550,7 +549,6 @@ def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, con
                 du = contact.correct(lin, u, du) if fix else du
             if du is not None and np.all(np.isfinite(du)) \
                     and (balanced or float(du @ r) < 0.0):
-                report.krylov_steps += mode == "krylov"
                 return du, data, mode
     full, kc = data is not None, None
     if data is None and reusable and opts.partial_refresh and not np.any(dup):

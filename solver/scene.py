@@ -83,7 +83,7 @@ stay measured from the mesh as given.
 
 import math
 import tomllib
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -400,6 +400,3 @@ def load_scene(path):
     scene = parse_scene(data, path)
     return scene if "name" in data.get("scene", {}) else replace(scene, name=path.stem)
 
-
-def scene_fields():
-    return [f.name for f in fields(Scene)]

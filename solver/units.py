@@ -15,21 +15,10 @@ density    tonne/mm^3          1040 kg/m^3 = 1.04e-9 tonne/mm^3
 A consistent set: force = mass * length / time^2 holds with tonne, mm, s, N.
 """
 
-MM = 1.0
-N = 1.0
-MPA = 1.0
-S = 1.0
-TONNE_PER_MM3 = 1.0
-
 
 def kg_per_m3(value: float) -> float:
     """Density in kg/m^3 converted to tonne/mm^3."""
     return value * 1e-12
-
-
-def kpa(value: float) -> float:
-    """Stress in kPa converted to MPa."""
-    return value * 1e-3
 
 
 TISSUE_DENSITY = kg_per_m3(1040.0)  # Buchaillard et al. 2009, as used by the face model

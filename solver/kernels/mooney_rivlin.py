@@ -9,8 +9,6 @@ params row p: (c10, c01, c20, c11, c02, d) in MPa, MPa, MPa, MPa, MPa, 1/MPa.
 import numpy as np
 from numba import njit
 
-N_PARAMS = 6
-
 
 @njit(cache=True)
 def iso_energy(I1b, I2b, p, wb, wbb):

@@ -67,7 +67,6 @@ class _Rigid:
         self.tri = -np.ones(s, dtype=np.int64)
         self.kv = np.zeros((3, Vn.shape[2]))
         self._f0 = np.zeros(Vn.shape[2])
-        self.rebuilds = 0
 
     def nodes(self):
         return self.slaves
@@ -82,7 +81,6 @@ class _Rigid:
             short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta,
                         self.depth, self.ptr, self.cand, self.dist)
             self.x_ref = self.x.copy()
-            self.rebuilds += 1
         # the slaves' tangents too (cheap): tangent() projects them without a new call
         rigid_contact(self.xs, t.k, t.vertices, t.tris, self.ptr, self.cand,
                       *t.normals.args(), t.search_radius, t.smoothing, True, self.fe, self.ke,

@@ -59,7 +59,6 @@ class OnlineOperator:
         self.fb, self.fc = np.zeros(r), np.zeros(r)
         self.f = np.zeros(r)
         self.kb, self.kc = np.zeros((r, r)), np.zeros((r, r))
-        self._scratch = np.zeros(r)
         self.s = np.zeros(len(op.bricks))
         self.e = np.zeros(self.ncab)
         self.taut = 0

@@ -37,9 +37,3 @@ def captured_energy(sigma, r):
     e = sigma ** 2
     return float(e[:r].sum() / e.sum()) if e.sum() > 0 else 1.0
 
-
-def projection_error(V, snapshots):
-    """(s,) |u_j - V V^T u_j| / max(|u_j|, tiny) of each snapshot column."""
-    U = np.asarray(snapshots, dtype=np.float64)
-    R = U - V @ (V.T @ U)
-    return np.linalg.norm(R, axis=0) / np.maximum(np.linalg.norm(U, axis=0), 1e-300)

@@ -47,7 +47,6 @@ class Cables(Term):
         self.L0 = np.linalg.norm(self.X[:, 1] - self.X[:, 0], axis=1)
         E = properties.youngs_modulus()
         self.AE = np.array([properties.area(MUSCLE_NAMES[m]) * E for m in self.muscle])
-        self.point_host, self.point_xi, self.point_fixed = host, xi, fixed
         on_jaw = fixed & np.concatenate([[f.muscle in MANDIBLE_MUSCLES] * len(f.points)
                                          for f in fibres])
         self.jaw_ends = on_jaw[ends] if jaw is not None else np.zeros(ends.shape, bool)
