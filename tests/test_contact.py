@@ -773,3 +773,41 @@ def test_reference_face_gesture_passes_where_a_lip_slave_met_its_patchs_edge(fac
     sim.run(on_record=lambda s, row: cutbacks.append(s.last.cutbacks if s.t > 0 else 0))
     assert sim.t == pytest.approx(0.2)
     assert sum(cutbacks) <= 1
+
+
+def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_them():
+    """Block B slid 2.5 mm over A, pressed 0.05 mm in: with candidates picked at rest
+    (4 per slave within 2 mm) some slaves are past their candidates' rim and lose part of
+    the penalty; once the candidates follow the state (commit), every slave over A's top
+    is held by the full penalty of the plane law. The System's pattern follows the new
+    pairs, and the rest pairs come back exactly with the rest state (restore)."""
+    from solver.system import System
+    mesh, ida, idb, fa, fb = two_blocks()
+    term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0)
+    q = term.passes[0]
+    rest = (q["ptr"].copy(), q["pair_tri"].copy())
+    sysm = System([term], mesh.n_nodes, [])
+    u = np.zeros((mesh.n_nodes, 3))
+    u[idb] = [2.5, 0.0, -0.05]
+    x = mesh.nodes + u
+    over = (np.abs(x[q["slaves"], 0]) < 3.9) & (np.abs(x[q["slaves"], 1]) < 3.9)
+    run = Runner(term, mesh.n_nodes)
+    run(u, False)
+    full = 0.05 * q["k"]
+    before = term.force[:len(q["slaves"])].copy()
+    assert (before[over] < 0.99 * full[over]).any()                # past the rim: faded
+    generation = term.blocks_generation
+    sysm.commit(u.ravel())
+    assert term.blocks_generation == generation + 1
+    q = term.passes[0]
+    from solver.assembly import block_dofs
+    assert all(np.array_equal(d, block_dofs(b)) for d, b in zip(sysm.pattern.dofs,
+                                                                term.blocks()))
+    run = Runner(term, mesh.n_nodes)
+    run(u, False)
+    after = term.force[:len(q["slaves"])]
+    assert after[over] == pytest.approx(full[over], rel=1e-9)
+    sysm.restore(np.zeros(3 * mesh.n_nodes))
+    q = term.passes[0]
+    assert np.array_equal(q["ptr"], rest[0]) and np.array_equal(q["pair_tri"], rest[1])
+    assert term.blocks_generation == generation + 2
