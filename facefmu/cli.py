@@ -7,7 +7,8 @@
                       [--anatomy SPEC] [--level L] [--full] [--vtu]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
-print one line to stderr naming the culprit and exit with status 2. A subcommand is an
+and a missing optional dependency (solver.extras: the message names the extra) print one
+line to stderr naming the culprit and exit with status 2. A subcommand is an
 entry of COMMANDS: name -> (help, add_arguments(parser), run(args) -> exit status).
 """
 
@@ -17,6 +18,7 @@ import sys
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.anatomy.load import LEVELS, load_anatomy
 from solver.errors import FaceFMUError
+from solver.extras import MissingExtra
 from solver.fidelity import FIDELITIES, REDUCED
 
 from . import run_scene
@@ -171,7 +173,7 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         return COMMANDS[args.command][2](args)
-    except (UserError, FaceFMUError) as e:
+    except (UserError, FaceFMUError, MissingExtra) as e:
         message = str(e)
     except OSError as e:
         message = f"{e.filename}: {e.strerror}" if e.filename else str(e)

@@ -2,13 +2,16 @@
 
 Writes OUT/SCENE.csv (the recorded outputs and activations at every output interval),
 OUT/SCENE.png (outputs and activations over time) and, with --vtu, one VTU file per
-record (displacements and principal strains, for ParaView).
+record (displacements and principal strains, for ParaView). The picture needs the
+package's `plot` extra, the progress bar (unless --quiet) `sweep`, --vtu `export`: they
+are checked before the run.
 """
 
 import csv
 from pathlib import Path
 
 from solver.anatomy.base import MUSCLE_NAMES
+from solver.extras import need
 from solver.simulation import Simulation, builtin_scenes
 
 
@@ -30,6 +33,11 @@ def add_arguments(parser):
 
 
 def run(args):
+    need("matplotlib", "plot", "facefmu run (its PNG)")
+    if not args.quiet:
+        need("tqdm", "sweep", "facefmu run's progress bar (--quiet: none)")
+    if args.vtu:
+        need("meshio", "export", "facefmu run --vtu")
     overrides = {k: v for k, v in (("anatomy", args.anatomy), ("level", args.level)) if v}
     if args.full:
         overrides["half"] = False

@@ -6,19 +6,16 @@ draws two panels, a three-quarter front view and a side view from the subject's 
 the outer skin (see skin_faces) as a light translucent surface, the muscle fibres coloured
 by muscle, the fixed nodes faintly and the lip landmarks. With a displacement everything
 is drawn deformed (the fibres carried by the mesh: solver.io.fibre_displacements). Takes
-about half a second for the reference face.
+about half a second for the reference face. matplotlib comes with the package's `plot`
+extra (solver.extras).
 """
 
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import to_rgb
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from .anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from .extras import need
 from .io.export import fibre_displacements
 
 MUSCLE_COLOURS = dict(zip(MUSCLE_NAMES, (
@@ -33,6 +30,11 @@ def plot_anatomy(anatomy, path, displacement=None, title=None, rigid=()):
     """Write a PNG of anatomy (optionally deformed by displacement (n, 3) mm) to path;
     rigid: (vertices (p, 3), triangles (t, 3)) surfaces drawn in grey (the teeth, as
     posed)."""
+    need("matplotlib", "plot", "solver.plot")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
     mesh = anatomy.mesh
     u = np.zeros_like(mesh.nodes) if displacement is None else np.asarray(displacement)
     x = mesh.nodes + u
@@ -87,6 +89,8 @@ def _camera(elev, azim):
 def _skin_colours(skin, camera):
     """(k, 4) RGBA of the skin quads (k, 4, 3) seen from camera (3,): front faces lit by a
     lamp above the camera, both sides alike; back faces (the far side) fainter."""
+    from matplotlib.colors import to_rgb
+
     normal = np.cross(skin[:, 2] - skin[:, 0], skin[:, 3] - skin[:, 1])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     lamp = camera + np.array([0.0, 0.0, 0.6])
@@ -100,6 +104,8 @@ def _skin_colours(skin, camera):
 
 def _draw(ax, anatomy, x, skin, fibres, camera):
     """Skin, fixed nodes, fibres and landmarks on one 3D axes, back to front."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
     ax.add_collection3d(Poly3DCollection(skin, facecolors=_skin_colours(skin, camera),
                                          edgecolors=(0.45, 0.3, 0.2, 0.10), linewidths=0.3,
                                          zorder=1))
@@ -140,6 +146,8 @@ def _zoom(x, half, elev, azim):
 
 def _legend(fig, anatomy):
     """Muscles present (short and full names), landmarks and fixed nodes, below the panels."""
+    from matplotlib.lines import Line2D
+
     present = [m for m in MUSCLE_NAMES if anatomy.muscle_fibres(m)]
     handles = [Line2D([], [], color=MUSCLE_COLOURS[m], lw=3,
                       label=f"{m}  {MUSCLE_FULL_NAMES[m]}") for m in present]

@@ -17,6 +17,7 @@ import numpy as np
 
 from .anatomy.base import MUSCLE_NAMES
 from .anatomy.load import load_anatomy
+from .extras import need
 from .face import FaceModel
 from .materials import MooneyRivlin
 from .muscles import MuscleProperties
@@ -178,7 +179,7 @@ class Simulation:
             on_record(self, rows[0])
         iterator = times
         if progress:
-            from tqdm import tqdm
+            tqdm = need("tqdm", "sweep", "a progress bar (Simulation.run(progress=True))").tqdm
             iterator = tqdm(times, desc=sc.name, unit="record")
         for t in iterator:
             self.set_activations(sc.activations(t))

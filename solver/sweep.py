@@ -43,6 +43,8 @@ import os
 import resource
 import time
 
+from .extras import need
+
 
 def _status_mb(key):
     """A size field of /proc/self/status (VmRSS, VmHWM) in MiB."""
@@ -118,6 +120,7 @@ class Sweep:
     numba_threads: numba threads per task."""
 
     def __init__(self, scheduler=None, n_workers=2, numba_threads=1):
+        need("dask.distributed", "sweep", "solver.sweep")
         from dask.distributed import Client, LocalCluster
 
         self.numba_threads = numba_threads

@@ -27,18 +27,20 @@ wedge has triangle (0, 1, 2) with its right-hand normal pointing away from trian
 (3, 4, 5), and edges 0-3, 1-4, 2-5, so it is written (I, K, J, M, O, N). A brick collapsed
 on another pair of parallel edges of one face is first rotated into the I J K K M N O O
 pattern; any other degenerate brick is written as a degenerate hexahedron.
+
+meshio comes with the package's `export` extra (solver.extras).
 """
 
 from itertools import permutations, product
 from pathlib import Path
 
-import meshio
 import numpy as np
 
 from ..anatomy.base import MUSCLE_NAMES
 from ..element import NODE_XI, shape_functions
 from ..embedding import locate
 from ..errors import ParameterError
+from ..extras import need
 from ..strain import green_lagrange_strain, principal_strains
 
 FORMATS = {".vtu": "vtu", ".xdmf": "xdmf"}
@@ -83,8 +85,12 @@ def _require_h5py(path):
 def _write(path, mesh, file_format):
     """Write one meshio.Mesh; returns the files written [Path, ...]."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    meshio.write(path, mesh, file_format=file_format)
+    _meshio().write(path, mesh, file_format=file_format)
     return [path] + ([path.with_suffix(".h5")] if file_format == "xdmf" else [])
+
+
+def _meshio():
+    return need("meshio", "export", "export to VTU or XDMF")
 
 
 def _checked(array, shape, name):
@@ -113,7 +119,7 @@ def solid_mesh(mesh, u=None, point_data=None, cell_data=None):
     for k, v in (cell_data or {}).items():
         cdata[k] = _checked(v, (mesh.n_bricks,), f"cell data {k!r}")
     blocks, runs = _blocks(cells, types)
-    return meshio.Mesh(mesh.nodes, blocks, point_data=pdata,
+    return _meshio().Mesh(mesh.nodes, blocks, point_data=pdata,
                        cell_data={k: [np.asarray(v)[r] for r in runs] for k, v in cdata.items()})
 
 
@@ -203,5 +209,5 @@ def muscle_mesh(fibres, moves=None):
     pdata = {"insertion": np.concatenate([f.insertion for f in fibres]).astype(np.uint8)}
     if moves is not None:
         pdata["displacement"] = np.vstack(moves)
-    return meshio.Mesh(np.vstack([f.points for f in fibres]), [("line", lines)],
+    return _meshio().Mesh(np.vstack([f.points for f in fibres]), [("line", lines)],
                        point_data=pdata, cell_data={k: [v] for k, v in cdata.items()})
