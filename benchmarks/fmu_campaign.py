@@ -98,9 +98,9 @@ def seeds(text):
 def probe_for(fidelity):
     """The penetration probe of the FMU's default model at this fidelity."""
     sys.path.insert(0, str(ROOT))
-    from solver.simulation import Simulation
+    from solver.entry import open_simulation
     from solver.stability import Probe
-    sim = Simulation("default", fidelity=fidelity or None)
+    sim = open_simulation("default", fidelity=fidelity or None)
     return Probe(sim.anatomy)
 
 

@@ -36,9 +36,10 @@ step, duration = float(step), float(duration)
 n = int(round(duration / step))
 rows = []
 if mode == "inprocess":
-    from solver.simulation import Simulation, resolve_scene
+    from solver.entry import open_simulation
+    from solver.simulation import resolve_scene
     scene = resolve_scene(scene_name)
-    sim = Simulation(scene_name, anatomy=anatomy, fidelity=fidelity or None)
+    sim = open_simulation(scene_name, anatomy=anatomy, fidelity=fidelity or None)
     t0 = time.perf_counter()
     for k in range(n):
         t = (k + 1) * step

@@ -12,8 +12,8 @@ error against the full-order model on a lip gesture.
    (1 ms), outputs read after each. Timed: the stepping loop (setReal, doStep, getReal),
    not instantiation and initialization (reported apart). Real-time factor = wall time /
    simulated time; `--repeat` runs (fresh instances), the best and all reported.
-3. The same reduced model in this process (Simulation(..., fidelity="realtime"), same
-   steps): its wall time, and its outputs against the FMU's.
+3. The same reduced model in this process (open_simulation(..., fidelity="realtime"),
+   same steps): its wall time, and its outputs against the FMU's.
 4. The full-order model of the scene at the realtime knobs (coarse generic half face,
    loose tolerances; 5 ms caller steps, as solver.rom.accuracy) on the same gesture: the
    largest difference in lip aperture and protrusion over its 5 ms records (--no-full
@@ -138,6 +138,7 @@ def main(argv=None):
     import numpy as np
     from solver.rom.accuracy import GESTURES
     from solver.rom.train import drive
+    from solver.entry import open_simulation
     from solver.simulation import Simulation
     duration, schedules = GESTURES[args.gesture]
     print(f"load average before: {' '.join(f'{x:.2f}' for x in load())} "
@@ -158,7 +159,7 @@ def main(argv=None):
           f"{best['cpu_s']:.3f} s); initialization {best['init_s']:.2f} s")
     fmu_rows = np.array(best["rows"])
 
-    rom = Simulation("speech", fidelity="realtime")
+    rom = open_simulation("speech", fidelity="realtime")
     zero = rom.get_state()
     walls = []
     for _ in range(args.repeat):
@@ -175,7 +176,7 @@ def main(argv=None):
           f"aperture {d[0]:.2g} mm, protrusion {d[1]:.2g} mm")
 
     if not args.no_full:
-        full = Simulation(rom.scene.with_overrides(fidelity=""), loaded_anatomy=rom.anatomy)
+        full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)      # the full model
         t0 = time.perf_counter()
         frows = drive(full, schedules, duration, 5e-3)
         fwall = time.perf_counter() - t0

@@ -11,7 +11,7 @@ SCENE: a built-in scene or a TOML file; the default, `speech` (solver/scenes/spe
 drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
 scene's full-order model at the realtime knobs (solver.fidelity.REDUCED: coarse generic
 half face) and cached in the user cache (solver.rom.store; the path is printed), where
-`Simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
+`open_simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
 a dask LocalCluster (solver.sweep.Sweep, `--workers` one-thread processes) or a
 running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the steps.
 
@@ -52,11 +52,12 @@ def train_main(args):
 
 def accuracy_main(args):
     from solver.rom.accuracy import GESTURES, compare
+    from solver.entry import open_simulation
     from solver.simulation import Simulation
     scene = load(args.scene)
-    rom = Simulation(scene, fidelity="realtime", rom_model=args.model,
-                     check_every=args.check_every)
-    full = Simulation(rom.scene.with_overrides(fidelity=""), loaded_anatomy=rom.anatomy)
+    rom = open_simulation(scene, fidelity="realtime", rom_model=args.model,
+                          check_every=args.check_every)
+    full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)          # the full model
     m = rom.rom_meta
     print(f"model: {m['basis_size']} modes, {m['bricks_selected']} of {m['bricks_total']} "
           f"bricks, trained on {m['runs']} runs in {m['train_s']:.0f} s")

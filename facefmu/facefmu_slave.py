@@ -1,5 +1,6 @@
 """FaceFMU: the FMI 2.0 co-simulation slave (pythonfmu). No physics here: it maps FMU
-variables to solver.simulation.Simulation.
+variables to the simulation that solver.entry.open_simulation opens (solver.simulation.
+Simulation, or solver.rom.simulation.ReducedSimulation at fidelity "realtime").
 
 What a master sees:
 * doStep with a bad input (an activation that is NaN, inf or outside [0, 1]; a step size
@@ -68,7 +69,7 @@ PRESET_PARAMETERS = {"level": "coarse", "half_face": True, "tolerance": 1e-3,
 
 class FaceFMU(Fmi2Slave):
     """The FMI 2.0 co-simulation slave: the inputs, outputs and parameters of the module
-    docstring over a solver.simulation.Simulation."""
+    docstring over the simulation of solver.entry.open_simulation."""
 
     author = "FaceFMU developers"
     description = ("Finite-element face (Nazari et al. orofacial model): ten muscle "
@@ -149,11 +150,12 @@ class FaceFMU(Fmi2Slave):
         self.time = float(start_time or 0.0)
 
     def exit_initialization_mode(self):
-        from solver.simulation import Simulation
+        from solver.entry import open_simulation
         try:
             overrides = self._overrides()
             self._used = {p: getattr(self, p) for p in PARAMETERS}
-            self.sim = Simulation(self.scene, fidelity=self.fidelity or None, **overrides)
+            self.sim = open_simulation(self.scene, fidelity=self.fidelity or None,
+                                       **overrides)
         except Exception as exc:
             self.log(f"cannot build the model: {exc}", Fmi2Status.error)
             raise
@@ -169,8 +171,9 @@ class FaceFMU(Fmi2Slave):
             self.sim.release()
 
     def _overrides(self):
-        """Simulation's keyword overrides: the parameters the master has set (a scene
+        """open_simulation's keyword overrides: the parameters the master has set (a scene
         file's own values stand where it has not), and the fidelity's."""
+        from solver.entry import is_reduced
         from solver.simulation import resolve_scene
         scene = resolve_scene(self.scene)
         if scene.fidelity and "fidelity" not in self._set:
@@ -188,7 +191,7 @@ class FaceFMU(Fmi2Slave):
                 if name in self._set:
                     self.log(f"parameter {name} = {getattr(self, name)!r} not used: fidelity "
                              f"{self.fidelity!r} sets it", Fmi2Status.warning)
-        if self.fidelity in REDUCED or scene.fidelity in REDUCED:
+        if is_reduced(scene, self.fidelity or None):
             out["rom_dirs"] = self._rom_dirs()
         return out
 

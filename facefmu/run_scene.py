@@ -12,7 +12,8 @@ from pathlib import Path
 
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.extras import need
-from solver.simulation import Simulation, builtin_scenes
+from solver.entry import open_simulation
+from solver.simulation import builtin_scenes
 
 
 def add_arguments(parser):
@@ -41,7 +42,7 @@ def run(args):
     overrides = {k: v for k, v in (("anatomy", args.anatomy), ("level", args.level)) if v}
     if args.full:
         overrides["half"] = False
-    sim = Simulation(args.scene, **overrides)
+    sim = open_simulation(args.scene, **overrides)
     held = {k: v for k, v in (("opening", args.jaw_opening),
                               ("protrusion", args.jaw_protrusion)) if v is not None}
     if held:

@@ -1,6 +1,6 @@
 """Named fidelity presets: what a run trades between accuracy and time.
 
-    Simulation("rounding_u", fidelity="balanced")       # the API
+    open_simulation("rounding_u", fidelity="balanced")  # the API (solver.entry)
     facefmu run rounding_u --fidelity fast              # the command line
     [scene] fidelity = "fast"                           # a scene file
     fidelity = "accurate"                               # the FMU's String parameter
@@ -73,9 +73,9 @@ PRESETS = {
 FIDELITIES = tuple(PRESETS)
 
 # --- reduced-order fidelities (solver.rom; issue 10) -----------------------------------
-# Not presets of the full-order solver (not in FIDELITIES nor PRESETS): Simulation(...,
-# fidelity="realtime"), a scene file's `fidelity = "realtime"`, `facefmu run --fidelity
-# realtime` and the FMU's fidelity parameter build a solver.rom.simulation.
+# Not presets of the full-order solver (not in FIDELITIES nor PRESETS): open_simulation(...,
+# fidelity="realtime") (solver.entry), a scene file's `fidelity = "realtime"`, `facefmu run
+# --fidelity realtime` and the FMU's fidelity parameter open a solver.rom.simulation.
 # ReducedSimulation, whose full-order model (training snapshots, fallback) has these knobs.
 REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatation",
                             **LOOSE)}
@@ -97,6 +97,6 @@ def fidelity_overrides(name, anatomy="generic"):
 
 def apply_fidelity(scene, name):
     """A new Scene: `scene` (solver.scene.Scene) with the preset `name`'s fields (its
-    `fidelity` field, which makes Simulation build the reduced model for "realtime", is
-    left as it was: the full-order model at the realtime knobs is this scene)."""
+    `fidelity` field, which makes open_simulation open the reduced model for "realtime",
+    is left as it was: the full-order model at the realtime knobs is this scene)."""
     return scene.with_overrides(**fidelity_overrides(name, scene.anatomy))

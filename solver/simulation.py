@@ -8,7 +8,9 @@
 
 This is what the FMU and the command line drive; it holds no physics of its own.
 A step that fails (after every cutback) leaves the simulation at its last good state
-and returns stats with converged = False.
+and returns stats with converged = False. Simulation is the full model at any fidelity;
+the reduced-order one (fidelity "realtime") is solver.rom.simulation.ReducedSimulation,
+and solver.entry.open_simulation opens whichever a fidelity asks for.
 """
 
 from pathlib import Path
@@ -17,8 +19,10 @@ import numpy as np
 
 from .anatomy.base import MUSCLE_NAMES
 from .anatomy.load import load_anatomy
+from .errors import ParameterError
 from .extras import need
 from .face import FaceModel
+from .fidelity import REDUCED, apply_fidelity
 from .materials import MooneyRivlin
 from .muscles import MuscleProperties
 from .scene import GRAVITY, Scene, load_scene
@@ -50,29 +54,20 @@ def _contact_terms(anatomy, scene, jaw=None):
 
 
 class Simulation:
-    """scene: Scene, built-in name or TOML path; fidelity: a preset name of
-    solver.fidelity (applied before the overrides); overrides: Scene fields to replace;
-    loaded_anatomy: an Anatomy already in memory (instead of loading the scene's)."""
-
-    def __new__(cls, *args, **kwargs):
-        # --- reduced-order fidelity hook (solver.rom, issue 10): fidelity="realtime", given
-        # here or in the scene (file), builds a solver.rom.simulation.ReducedSimulation
-        # (this API, the reduced model behind it)
-        from .fidelity import REDUCED
-        if cls is Simulation:
-            name = kwargs.get("fidelity")
-            if name is None:
-                scene = args[0] if args else kwargs.get("scene", "default")
-                name = getattr(resolve_scene(scene), "fidelity", "")
-            if name in REDUCED:
-                from .rom.simulation import ReducedSimulation
-                return super().__new__(ReducedSimulation)
-        return super().__new__(cls)
+    """The full model. scene: Scene, built-in name or TOML path; fidelity: a preset name
+    of solver.fidelity (applied before the overrides; a reduced-order one such as
+    "realtime" is refused: solver.entry.open_simulation opens it); overrides: Scene fields
+    to replace; loaded_anatomy: an Anatomy already in memory (instead of loading the
+    scene's). A scene file that names "realtime" gets the full model at the realtime
+    knobs here."""
 
     def __init__(self, scene="default", loaded_anatomy=None, fidelity=None, **overrides):
+        if fidelity in REDUCED:
+            raise ParameterError(f"fidelity {fidelity!r} is a reduced-order model, which "
+                                 "Simulation does not build: open it with "
+                                 f"solver.open_simulation(scene, fidelity={fidelity!r})")
         scene = resolve_scene(scene)
         if fidelity is not None:
-            from .fidelity import apply_fidelity
             scene = apply_fidelity(scene, fidelity)
         if str(overrides.get("anatomy", "generic")) != "generic" and "rows" not in overrides:
             overrides["rows"] = None        # the scene's rows (e.g. its preset's) set the

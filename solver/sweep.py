@@ -7,9 +7,9 @@
     with Sweep(scheduler="tcp://host:8786") as sweep:     # a running cluster
         ...
 
-A task is a dict: a "label" and keyword arguments of solver.simulation.Simulation (Scene
-fields such as level, half, substep_tol; "fidelity" for a preset; "anatomy" takes the path
-of an ANSYS face folder as the workers see it). The scene is a built-in name, a TOML path
+A task is a dict: a "label" and keyword arguments of solver.entry.open_simulation (Scene
+fields such as level, half, substep_tol; "fidelity" for a preset, or "realtime"; "anatomy"
+takes the path of an ANSYS face folder as the workers see it). The scene is a built-in name, a TOML path
 or a dict as solver.scene.parse_scene takes; it ships as plain data with every task. Each
 task runs in a worker process (`run_task`) and returns plain data with its own timing and
 peak memory. A task that raises, or whose worker dies, comes back with its error message
@@ -72,19 +72,20 @@ def _maxrss_mb():
 def run_task(task, scene="default", numba_threads=1):
     """Run one task in this process; plain data back.
 
-    task: {"label": str, **Simulation keyword arguments}; scene: built-in name, TOML path
-    or scene dict; numba_threads: numba threads for the task. Returns a dict with
+    task: {"label": str, **open_simulation keyword arguments}; scene: built-in name, TOML
+    path or scene dict; numba_threads: numba threads for the task. Returns a dict with
         label, kwargs (the task without its label), worker ("host:pid"), error ("" if none),
         ndof, bricks, volume_mm3 (reference volume of the mesh),
-        build_s (Simulation construction), wall_s and cpu_s (wall and process CPU time of
+        build_s (open_simulation), wall_s and cpu_s (wall and process CPU time of
         Simulation.run()), simulated_s, rtf = wall_s / simulated_s,
         peak_mb (the task's peak resident set above its start, MiB), memory_method
         ("vmhwm" or "ru_maxrss"), rows (Simulation.run's records: time, outputs, activations).
     """
     import numba
 
+    from solver.entry import open_simulation
     from solver.scene import parse_scene
-    from solver.simulation import Simulation, resolve_scene
+    from solver.simulation import resolve_scene
 
     numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
     kwargs = {k: v for k, v in task.items() if k != "label"}
@@ -96,7 +97,7 @@ def run_task(task, scene="default", numba_threads=1):
     try:
         base = parse_scene(scene) if isinstance(scene, dict) else resolve_scene(scene)
         t0 = time.perf_counter()
-        sim = Simulation(base, **kwargs)
+        sim = open_simulation(base, **kwargs)
         t1, c1 = time.perf_counter(), time.process_time()
         rows = sim.run()
         t2, c2 = time.perf_counter(), time.process_time()
@@ -165,8 +166,8 @@ class Sweep:
         self._warm = True
 
     def run(self, tasks, scene="default", progress=True):
-        """Run tasks (dicts: label and Simulation keyword arguments) of scene; their results
-        (see run_task) in the order of tasks. Tasks are submitted in list order (dask starts
+        """Run tasks (dicts: label and open_simulation keyword arguments) of scene; their
+        results (see run_task) in the order of tasks. Tasks are submitted in list order (dask starts
         them roughly so): put the long ones first."""
         from dask.distributed import as_completed
 

@@ -123,15 +123,16 @@ def test_scene_file_fidelity_key_gives_defaults_that_its_own_keys_override():
 
 def test_cli_run_fidelity_applies_the_preset_and_level_wins(tmp_path, monkeypatch, capsys):
     from facefmu import cli, run_scene
+    from solver.entry import open_simulation
 
     built = []
 
-    class Recording(Simulation):
-        def __init__(self, *args, **kw):
-            super().__init__(*args, **kw)
-            built.append(self.scene)
+    def recording(*args, **kw):
+        sim = open_simulation(*args, **kw)
+        built.append(sim.scene)
+        return sim
 
-    monkeypatch.setattr(run_scene, "Simulation", Recording)
+    monkeypatch.setattr(run_scene, "open_simulation", recording)
     scene = tmp_path / "tiny.toml"
     scene.write_text('[scene]\nname = "tiny"\nduration = 0.01\n[muscles]\ndriven = ["OOP"]\n'
                      '[outputs]\ninterval = 0.01\n[[schedule]]\nmuscle = "OOP"\nkind = "step"\n'

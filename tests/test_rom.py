@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.entry import open_simulation
 
 
 def test_pod_basis_is_orthonormal_and_reproduces_the_snapshots(trained):
@@ -51,8 +51,9 @@ def test_ecsw_weights_are_nonnegative_and_reproduce_the_projected_force(trained)
 
 def test_rom_follows_the_full_model_on_a_training_pattern(trained):
     from solver.rom.train import drive
-    rom = Simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
-                     loaded_anatomy=trained["full"].anatomy, trust="warn", check_every=10)
+    rom = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                          loaded_anatomy=trained["full"].anatomy, trust="warn",
+                          check_every=10)
     task, res = trained["tasks"][0], trained["results"][0]
     with warnings.catch_warnings():
         warnings.simplefilter("error")                     # no trust warning on training
@@ -91,8 +92,8 @@ def test_trust_check_fires_far_outside_the_training_range(trained):
     # first implementation's damping, lagged over 5 substeps, and 4.8 with the exact
     # per-substep damping of the fast method: at the threshold of this tiny model)
     scene = trained["scene"].with_overrides(force_scale={"OOP": 10.0, "RIS": 10.0})
-    rom = Simulation(scene, fidelity="realtime", rom_model=trained["path"],
-                     loaded_anatomy=trained["full"].anatomy, check_every=5)
+    rom = open_simulation(scene, fidelity="realtime", rom_model=trained["path"],
+                          loaded_anatomy=trained["full"].anatomy, check_every=5)
     rom.set_activations({"OOP": 1.0, "RIS": 1.0})
     with pytest.warns(TrustWarning, match="switching to the full model"):
         for k in range(1, 5):
@@ -107,7 +108,7 @@ def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
     from solver.rom import ModelNotTrained
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(tmp_path))
     with pytest.raises(ModelNotTrained, match="benchmarks/rom_train.py"):
-        Simulation(Scene(driven=("OOP",)), fidelity="realtime")
+        open_simulation(Scene(driven=("OOP",)), fidelity="realtime")
 
 
 def test_a_levels_own_rows_given_or_not_name_the_same_model():

@@ -50,25 +50,37 @@ def test_scene_file_fidelity_realtime_builds_the_reduced_model(trained, scene_fi
     from solver.rom.simulation import ReducedSimulation
     from solver.rom.store import model_key
     from solver.scene import load_scene
-    from solver.simulation import Simulation
+    from solver.entry import open_simulation
     scene = load_scene(scene_file)
     assert scene.fidelity == "realtime" and scene.level == "coarse"
     assert model_key(scene) == model_key(trained["scene"])
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(trained["folder"]))
-    sim = Simulation(scene_file, loaded_anatomy=trained["full"].anatomy)
+    sim = open_simulation(scene_file, loaded_anatomy=trained["full"].anatomy)
     assert isinstance(sim, ReducedSimulation) and sim.mode == "rom"
     rows = sim.run()
     assert rows[-1]["time"] == pytest.approx(0.01) and rows[-1]["lip_protrusion"] != 0.0
+
+
+def test_simulation_is_the_full_model_and_refuses_a_reduced_fidelity(scene_file):
+    """Simulation builds the full model: a scene file that names "realtime" gets it at the
+    realtime knobs; fidelity="realtime" given to it is refused, naming open_simulation."""
+    from solver.errors import ParameterError
+    from solver.simulation import Simulation
+    sim = Simulation(scene_file)
+    assert type(sim) is Simulation and sim.scene.fidelity == "realtime"
+    assert (sim.scene.level, sim.scene.half) == ("coarse", True)
+    with pytest.raises(ParameterError, match=r"open_simulation\(scene, fidelity='realtime'\)"):
+        Simulation("default", fidelity="realtime")
 
 
 def test_scene_file_realtime_without_a_model_names_the_training_command(scene_file,
                                                                         tmp_path,
                                                                         monkeypatch):
     from solver.rom import ModelNotTrained
-    from solver.simulation import Simulation
+    from solver.entry import open_simulation
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(tmp_path / "empty"))
     with pytest.raises(ModelNotTrained, match=r"rom_train\.py --scene SCENE.*TOML"):
-        Simulation(scene_file)
+        open_simulation(scene_file)
 
 
 def test_cli_run_fidelity_realtime(trained, scene_file, tmp_path, monkeypatch, capsys):
@@ -162,9 +174,9 @@ def test_realtime_hands_over_to_the_full_model_when_the_jaw_opens(trained, scene
     model; an open one is outside its envelope, so the run goes on with the full model,
     with a TrustWarning naming the jaw, and the jaw opens the lips."""
     from solver.rom.simulation import ReducedSimulation, TrustWarning
-    from solver.simulation import Simulation
+    from solver.entry import open_simulation
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(trained["folder"]))
-    sim = Simulation(scene_file, loaded_anatomy=trained["full"].anatomy)
+    sim = open_simulation(scene_file, loaded_anatomy=trained["full"].anatomy)
     assert isinstance(sim, ReducedSimulation)
     sim.set_activations({"OOP": 0.3})
     sim.set_jaw(0.0, 0.0)

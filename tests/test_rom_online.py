@@ -11,12 +11,12 @@ check the same residual, the outputs the same numbers, and a rolled-back step re
 import numpy as np
 import pytest
 
-from solver.simulation import Simulation
+from solver.entry import open_simulation
 
 
 def _rom(trained, **kw):
-    return Simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
-                      loaded_anatomy=trained["full"].anatomy, **kw)
+    return open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                           loaded_anatomy=trained["full"].anatomy, **kw)
 
 
 def _drive(sim, task, duration=None, step=1e-3, each=None):

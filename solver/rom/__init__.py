@@ -1,6 +1,6 @@
 r"""Reduced-order model of the face: the `realtime` fidelity (issue 10).
 
-    sim = Simulation(scene, fidelity="realtime")     # the ROM behind Simulation's API
+    sim = open_simulation(scene, fidelity="realtime")    # the ROM behind Simulation's API
     python benchmarks/rom_train.py --scene SCENE      # train (cached per user)
     python benchmarks/rom_train.py --scene SCENE --accuracy   # held-out gestures
 

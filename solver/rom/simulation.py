@@ -1,4 +1,4 @@
-r"""`Simulation(scene, fidelity="realtime")`: the reduced model behind Simulation's API.
+r"""`open_simulation(scene, fidelity="realtime")`: the reduced model behind Simulation's API.
 
 The full-order Simulation of the scene is built as usual (coarse generic half face,
 solver.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
@@ -40,7 +40,7 @@ import warnings
 import numpy as np
 
 from ..errors import ParameterError
-from ..fidelity import REDUCED
+from ..fidelity import REDUCED, apply_fidelity
 from ..simulation import Simulation, resolve_scene
 from ..transient import StepStats
 from ..units import kg_per_m3
@@ -80,9 +80,12 @@ class ReducedSimulation(Simulation):
             raise ParameterError(f"trust = {trust!r} is not one of {TRUST_MODES}")
         if method not in METHODS:
             raise ParameterError(f"method = {method!r} is not one of {METHODS}")
-        if fidelity is None and getattr(resolve_scene(scene), "fidelity", "") not in REDUCED:
+        scene = resolve_scene(scene)
+        if fidelity is None and scene.fidelity not in REDUCED:
             fidelity = "realtime"           # else a scene (file) that asks for it: its keys win
-        super().__init__(scene, loaded_anatomy, fidelity=fidelity, **overrides)
+        if fidelity is not None:
+            scene = apply_fidelity(scene, fidelity)
+        super().__init__(scene, loaded_anatomy, **overrides)
         sc = self.scene
         if sc.analysis != "transient" or sc.gravity != "none" or not (sc.inertia or sc.damping):
             raise ParameterError("fidelity 'realtime' runs transient scenes without gravity "
