@@ -238,6 +238,54 @@ def test_a_folder_without_its_lip_surfaces_names_the_file(tmp_path):
         load_ansys_face(face)
 
 
+STALE_CHECK = """
+import json
+import numpy as np
+import solver.kernels.material_point as mp
+W = mp.response(np.diag([1.1, 0.95, 0.97]), [2.5e-3, 0.0, 1.175e-3, 0.0, 0.0, 0.8])[0]
+print(json.dumps({"file": mp.__file__, "W": W,
+                  "hits": sum(mp.point_response.stats.cache_hits.values()),
+                  "misses": sum(mp.point_response.stats.cache_misses.values())}))
+"""
+
+
+def test_an_edited_helper_in_another_file_recompiles_the_cached_kernels_that_call_it(
+        tmp_path):
+    """A copy of the solver package, run in fresh processes with their own cache folders:
+    the cached kernel material_point.point_response has the jitted helper vol_energy of
+    mooney_rivlin.py compiled into it. A second run loads it from the cache (same energy);
+    after vol_energy's U is doubled in the copy, a third run recompiles and gives the new
+    energy (a stamp of the kernel's own file would have loaded the stale kernel)."""
+    import shutil
+    from conftest import ROOT
+    copy = tmp_path / "copy"
+    shutil.copytree(ROOT / "solver", copy / "solver",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR",
+                                                             "FACEFMU_CACHE_DIR")}
+    env = {**base, "PYTHONPATH": str(copy), "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "FACEFMU_CACHE_DIR": str(tmp_path / "facefmu")}
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", STALE_CHECK], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-3000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    cold, warm = run(), run()
+    assert cold["file"].startswith(str(copy))
+    assert (cold["misses"], warm["hits"], warm["misses"]) == (1, 1, 0)   # cached, then used
+    assert warm["W"] == cold["W"]
+    helper = copy / "solver" / "kernels" / "mooney_rivlin.py"
+    old = "return (J - 1.0) ** 2 / d, "
+    assert old in helper.read_text()
+    helper.write_text(helper.read_text().replace(old, "return 2.0 * (J - 1.0) ** 2 / d, "))
+    edited = run()
+    J = 1.1 * 0.95 * 0.97
+    assert edited["misses"] == 1 and edited["hits"] == 0
+    assert edited["W"] == pytest.approx(cold["W"] + (J - 1.0) ** 2 / 0.8, rel=1e-12)
+
+
 # ----------------------------------------------------------------- numba cache directory
 
 CACHE_CHECK = """
