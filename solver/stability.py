@@ -283,13 +283,6 @@ def cases(full=False):
     return out
 
 
-def case_named(name, full=False):
-    for c in cases(full):
-        if c.name == name:
-            return c
-    raise KeyError(name)
-
-
 def halved(scene, step=np.inf):
     """The scene's TOML sections with every substep halved (see the module docstring);
     step: the smallest communication step, which also bounds the substeps."""
@@ -626,10 +619,10 @@ def _set_inputs(sim, acts):
 def run_case(case, progress=None, probe=True):
     """Run a Case in this process; returns a CaseRun. progress(k, n) is called after
     each step; probe: measure penetrations."""
-    from .simulation import Simulation
+    from .entry import open_simulation
     t_start = time.perf_counter()
     run = CaseRun(case.name)
-    sim = Simulation(parse_scene(case.scene, f"<case {case.name}>"))
+    sim = open_simulation(parse_scene(case.scene, f"<case {case.name}>"))
     pr = Probe(sim.anatomy, jaw=sim.face.jaw) if probe else None
     bounds = output_bounds(sim.anatomy)
     n = len(case.steps)

@@ -18,7 +18,7 @@ from solver.errors import ParameterError
 from solver.fidelity import FIDELITIES, LIP_SOFT, PRESETS, apply_fidelity
 from solver.scene import LEVELS, Scene, SceneError, parse_scene
 from solver.simulation import Simulation
-from solver.terms.contact import PENALTY
+from solver.terms.contact import PENALTY, TEETH_PENALTY
 
 ROOT = Path(__file__).resolve().parents[1]
 ACCURACY = ROOT / "benchmarks" / "accuracy_vs_time.py"
@@ -69,7 +69,7 @@ def test_the_lip_penalty_of_a_preset_reaches_the_lip_contact_only():
     assert terms[0]["lip_contact"].k == pytest.approx(terms[1]["lip_contact"].k
                                                       * LIP_SOFT / PENALTY)
     teeth = [n for n in terms[0] if n != "lip_contact"]
-    assert teeth and all(terms[0][n].penalty == PENALTY for n in teeth)
+    assert teeth and all(terms[i][n].penalty == TEETH_PENALTY for n in teeth for i in (0, 1))
     assert parse_scene({"solver": {"lip_penalty": 0.5}}).lip_penalty == 0.5
     for bad in (0.0, -1.0, float("nan"), "stiff"):
         with pytest.raises(SceneError) as info:

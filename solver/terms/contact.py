@@ -162,16 +162,6 @@ EDGE_FADE = 1.0            # mm: lip contact fades out over this distance beyond
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
-def triangulate(faces):
-    """(f, 3) or (f, 4) faces -> (t, 3) triangles (quads split along their 0-2 diagonal;
-    triangles with a repeated node, from degenerate quads, are left out)."""
-    faces = np.asarray(faces, dtype=np.int64)
-    tris = faces if faces.shape[1] == 3 else np.vstack([faces[:, [0, 1, 2]],
-                                                        faces[:, [0, 2, 3]]])
-    keep = (tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) & (tris[:, 2] != tris[:, 0])
-    return np.ascontiguousarray(tris[keep])
-
-
 def centred_triangles(faces, first):
     """Quads (f, 4) split into four triangles around their centre point, a virtual vertex
     (ids first, first + 1, ...: the mean of the quad's four nodes); degenerate quads
@@ -651,11 +641,6 @@ class LipContact(_Report, Term):
     def k(self):
         """(s,) the slaves' stiffnesses (N/mm), both passes, in the order of slaves."""
         return np.concatenate(self._stiffnesses())
-
-    @property
-    def n_pairs(self):
-        """The number of candidate pairs (both passes)."""
-        return sum(len(q["pair_tri"]) for q in self.passes)
 
     def positions(self, u):
         """(n + c, 3) the nodes' positions at displacements u (n, 3), then the virtual
