@@ -17,7 +17,7 @@ Runs (each an independent task of solver.sweep; the default sweep):
   with two brick rows per layer through the thickness (rows = 2, the fine level's own),
   so that the levels refine the mesh in the plane alone; the fine one ("fine") is the
   reference run of every generic-face run. (The levels' own meshes refine unevenly: one
-  row per layer up to paper, two at fine; against fine their errors did not fall
+  row per layer up to paper, two at fine; against fine their errors do not fall
   monotonically.) The fine face at TIGHT tolerances would cost twice its DEFAULT run
   and more than the 30 minutes of the sweep; the time-stepping and Newton error of the
   DEFAULT tolerances shows on the coarser levels, where TIGHT, DEFAULT and LOOSE runs
@@ -26,10 +26,8 @@ Runs (each an independent task of solver.sweep; the default sweep):
   and LOOSE tolerances, medium also at TIGHT, and medium with two rows at LOOSE: what the
   thickness resolution and the tolerances cost in error;
 * the full face and stiffening off on the medium level; formulation "full" on the coarse
-  and the medium half face. (The coarse level is slow for its size on this gesture: its
-  lips chatter on the teeth's edge, see solver/terms/contact.py; its full-face and TIGHT
-  runs were left out to keep the sweep within 30 minutes, and without stiffening it was
-  refused at t = 0.092 s.)
+  and the medium half face. (No full-face, TIGHT or stiffening-off run of the coarse
+  level: the medium level's show those effects, and the sweep keeps within 30 minutes.)
 * the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
 * the `balanced` preset at substep error tolerances 1e-2, 2e-2 and 3e-2 mm, and `fast`
@@ -65,10 +63,11 @@ figures of the call that ran them).
 
 --quick: the sweep shrunk to run in under 3 minutes: 0.05 s of the gesture (the opening),
 the level study at the DEFAULT tolerances and the levels' own rows against the paper
-half face (their time-stepping
-and Newton error, 0.004 mm on the fine face against TIGHT in the default sweep over 0.05 s,
-is under a tenth of the smallest error measured here), LOOSE runs, and full face, formulation "full" and stiffening off on the coarse face
-only; no fine level, no reference face. Exits with status 1 unless the error falls as the
+half face (the time-stepping and Newton error of the DEFAULT tolerances, the reference
+face's against its TIGHT run in the default sweep, is under a tenth of the smallest error
+measured here; docs/accuracy.md),
+LOOSE runs, and full face, formulation "full" and stiffening off on the coarse face only;
+no fine level, no reference face. Exits with status 1 unless the error falls as the
 level rises (coarse > medium).
 
 --list runs nothing: it prints the runs of the sweep (or of --only), each with its
@@ -316,7 +315,7 @@ def mark_presets(table):
     """Set row["preset"] on the generic-face rows whose knobs are a fidelity preset's."""
     from solver.fidelity import FIDELITIES, PRESETS
 
-    for r in table:                   # the presets of now (a --replot of an older table)
+    for r in table:                   # the current presets (also on a --replot of a table)
         r["preset"] = r.get("fidelity", "")             # "realtime": the reduced model
     for name in FIDELITIES:
         knobs = with_rows({**DEFAULT, **PRESETS[name]})

@@ -40,7 +40,7 @@ abort at exit.
   use after free ends in an abort, then repeats more closely between wrappers.
 --valgrind: one child under valgrind's memcheck instead of --runs children; prints the
   invalid reads and writes of the wrapper (finalizePythonInterpreter, onLibraryUnload)
-  with the stack where the memory was freed. Takes a minute or two with --fmu triv.
+  with the stack where the memory was freed (--fmu triv keeps it short).
 --main-job N: then run the README's main job (examples/cosim_speech.py) N times, each
   into a fresh folder, and count its exit codes.
 --cores: children may dump core (into the run's folder); the first core's gdb

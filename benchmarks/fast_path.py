@@ -1,4 +1,4 @@
-"""The fast full-order path against the old one: wall time of a lip gesture with contact.
+"""The full-order solver's defaults against full Newton: wall time of a lip gesture.
 
     python benchmarks/fast_path.py [--only a|b] [--quick] [--duration S] [--paths old,new]
                                    [--linear-solver auto|pardiso|superlu] [--profile]
@@ -18,7 +18,7 @@ on
 Each case runs with each path (build time apart, the numba kernels compiled beforehand):
 
     old  full Newton: a factorization at every iteration, predictor u_n + h v_n with a
-         second try from u_n (solver.transient), as before issue 10
+         second try from u_n (solver.transient)
     new  the defaults: factorization reuse (NewtonOptions.reuse, refactor_ratio) and
          the integrator's warm start (Transient.predictor)
 
@@ -29,9 +29,9 @@ contact terms' own gaps), and the largest difference (mm) between the paths' lip
 aperture and protrusion over the recorded times (the paths share the convergence
 criteria, so they must agree to a small multiple of the Newton tolerance), and probe_s,
 the seconds of a fixed workload (probe(): a PARDISO factorization and solves, a dense
-product) just before and after the run: the machine's speed drifts (case a's wall time
-has been 26.7 s and 38.0 s within three minutes), so wall times compare only at similar
-probes, or one run after the other. A run whose
+product) just before and after the run: the machine's speed drifts, by tens of percent
+within minutes on a shared machine, so wall times compare only at similar probes, or one
+run after the other. A run whose
 step fails after every cutback is reported (column failed) with its figures up to there.
 --profile instead runs the new path under cProfile for --duration (default 0.05 s) and prints the
 top functions.

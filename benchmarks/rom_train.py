@@ -17,7 +17,7 @@ running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the s
 
 --accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced and the
 full-order model and prints max and RMS errors (mm) in lip aperture and protrusion and
-the wall time of each (docs/realtime.md has the figures of the last run).
+the wall time of each (docs/realtime.md has its figures, with the commands that made them).
 """
 
 import argparse

@@ -7,8 +7,8 @@ process exits (glibc then aborts it, "corrupted double-linked list", exit code 1
 patches/pythonfmu/README.md, docs/dev-notes/exit-crash.md). The corrected one is built
 from the wrapper sources of the pythonfmu 0.6.9 sdist (from PyPI, sha256-pinned) with the
 patches applied (0001 is upstream's change that made 0.7.0's wrapper), with the C++
-compiler and Python headers found here; built once (about 10 s, plus the sdist download on
-first use) and cached under ~/.cache/facefmu/pythonfmu-wrapper ($FACEFMU_CACHE_DIR or
+compiler and Python headers found here; built once (on first use, with the sdist's
+download) and cached under ~/.cache/facefmu/pythonfmu-wrapper ($FACEFMU_CACHE_DIR or
 $XDG_CACHE_HOME move it). $FACEFMU_PYTHONFMU_SDIST may name a local copy of the sdist
 (offline machines). Used at build time only (build_fmu.py), from a checkout: the patches
 are read from the repository's patches/ folder.

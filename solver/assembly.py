@@ -26,8 +26,8 @@ class Pattern:
     After construction: indptr, indices, nnz, and index[b] (k, d, d) for each block b.
     Every block couples all three DOFs of its nodes, so the pattern is that of the node
     pairs with each pair a 3 x 3 block, and is built so: a unique over the node pairs
-    (a ninth of the DOF pairs; 0.15 s against 2.1 s over the DOF pairs on the reference
-    face). Every node keeps its diagonal 3 x 3 block, in a block or not.
+    (a ninth of the DOF pairs, so a ninth of the sorting). Every node keeps its diagonal
+    3 x 3 block, in a block or not.
     """
 
     def __init__(self, ndof, blocks):

@@ -3,8 +3,8 @@ r"""Newton directions with the current contact tangent on a reused factorization
 
 A reused factorization A holds the smooth terms' tangent of an earlier iterate and the
 contact terms' tangent C_A of the iterate where it was made. Modified Newton's direction
-A^-1 (-r) lacks the contact's change since, C(u_k) - C_A, which on the lip gesture was
-what slowed the iteration (docs/dev-notes/fast_path.md: a pressed slave is a stiff
+A^-1 (-r) lacks the contact's change since, C(u_k) - C_A, which on a lip gesture is
+what slows the iteration (docs/dev-notes/fast_path.md: a pressed slave is a stiff
 spring whose direction turns with every step). Here the direction solves
 
     (A + D) du = c,    D = C(u_k) - C_A + U diag(d) U^T,    c = -r - U (d * p)
@@ -22,21 +22,19 @@ Newton step, or the last round's direction) and Z = A^-1 V, V the Arnoldi basis 
 residual's Krylov space; (A + D) z_j = v_j + D z_j: one solve and one product with D per
 iteration, and the direction from the kept Z without another solve. du_0's coefficient
 a is free (du_0 joins the augmentation space below, with A du_0 known, and the iteration
-starts from zero): with a = 1 fixed the start's linear residual is -D du_0, 15 to 30
-times ||c|| where a step carries a slave into contact (a penalty's stiffness), and 34 of
-163 directions on benchmarks/fast_path.py's case a use up their budget of solves; with a
-free, 27 of 158, and 881 solves against 915. The iteration stops
+starts from zero): with a = 1 fixed the start's linear residual is -D du_0, many times
+||c|| where a step carries a slave into contact (a penalty's stiffness), and more
+directions use up their budget of solves (benchmarks/fast_path.py's case a,
+docs/dev-notes/fast_path.md). The iteration stops
 when ||c - (A + D) du|| <= rtol ||c|| (the product A Z taken as V: to the factorization's
 precision). Where it does not within maxiter, no direction is returned and Newton
 refactorizes.
 
 rtol is Newton's forcing term (an inexact Newton direction): the residual and the
 convergence criteria are Newton's own, so it moves the converged state only within
-Newton's tolerance. The default 0.1: on benchmarks/fast_path.py, with a scratch override
-of the default in alternation with others, case a took 291 Newton
-iterations, 72 factorizations and 36.2-38.4 s against 274, 91 and 41.8-45.3 s at 1e-2
-(3e-2: 294, 88, 42.0 s; 0.15: 303, 69, 31.1 and 37.2 s; 0.2 and 0.3: a cutback or two);
-case b 227 iterations, 77 factorizations, 11.5-12.1 s against 209, 86 and 14.5-17.7 s.
+Newton's tolerance. The default 0.1: on benchmarks/fast_path.py a tighter rtol (1e-2,
+3e-2) costs more factorizations and time, a looser one (0.2, 0.3) cutbacks
+(docs/dev-notes/fast_path.md).
 
 Recycling (GCRO augmentation): the pairs (Z, A Z) solved for earlier directions on the
 same factorization (at most ``recycle``, the newest) span most of what the next, nearby D

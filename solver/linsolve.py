@@ -16,9 +16,9 @@ tangent as long as that converges fast enough.
 BLAS threads: ``single_threaded_blas()`` runs a block with every OpenBLAS loaded in the
 process at one thread and restores the caller's setting after. OpenBLAS threads its
 level-1 routines above about 10^4 entries, so numpy's dot products and norms of Newton's
-vectors ran on two threads, which next to numba's workers and another process on this
-2-core machine took 8 ms for a 13308-entry dot against 2 us on one thread (half the wall
-time of a transient run of the generic paper face went there).
+vectors would run on several threads, which then compete with numba's workers (and any
+other process) for the cores: on a loaded machine a threaded dot product of Newton's size
+waits for its threads far longer than it computes.
 """
 
 import contextlib
@@ -42,16 +42,13 @@ def _cpus():
 
 # MKL (PARDISO) threads: one per CPU this process may run on, unless the user (or a host:
 # dask's nanny sets one thread per sweep worker) chose; set before pypardiso loads MKL.
-# On this 2-core machine `benchmarks/fast_path.py --paths new` runs case a in 131 s with
-# two threads against 166 s with one, case b in 28.5 s against 34.6 s (MKL_NUM_THREADS=2
-# and 1 back to back; docs/dev-notes/fast_path.md). Inside an FMU `auto` is
-# SuperLU (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
+# PARDISO gains from every core it gets (benchmarks/fast_path.py at MKL_NUM_THREADS=2
+# against 1; docs/dev-notes/fast_path.md). Inside an FMU `auto` is SuperLU
+# (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
-# that run right after: a scratch loop of a solve then a kernel call gave the kernels
-# 5-10 % more speed; the whole gesture of benchmarks/fast_path.py within the machine's drift
-# (docs/dev-notes/fast_path.md).
+# that run right after a solve (docs/dev-notes/fast_path.md).
 os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
@@ -138,11 +135,10 @@ class SuperLU(_Reusable):
 # solution twice: three solves and two products with K for each Newton direction, which
 # modified Newton pays at every iteration (a reused factorization is refined against its
 # own matrix, so the refinement buys nothing there). 1x1 diagonal pivoting refines only
-# after a perturbed pivot (iparm(8) = 0). A solve on case a's tangent (23,004 free DOF):
-# 0.011 against 0.035 s; case b's: 0.005 against 0.018 s; factorizations as fast, the
-# relative residual 2.5e-13 against 3.2e-13 (a scratch timing on tangents saved from
-# benchmarks/fast_path.py; benchmarks/solver_scaling.py times factorization and solve
-# apart; figures of the whole gesture in docs/dev-notes/fast_path.md).
+# after a perturbed pivot (iparm(8) = 0): one solve per direction, factorizations as fast,
+# the relative residual of the same order (1e-13) on the face's tangents.
+# benchmarks/solver_scaling.py times factorization and solve apart (docs/benchmarks.md);
+# figures of the whole gesture in docs/dev-notes/fast_path.md.
 # A single-precision factorization whose first solve leaves ||K x - b|| above this times
 # ||b|| is made again in double (case b's tangents: about 6e-5).
 SINGLE_CHECK = 1e-3
@@ -168,9 +164,9 @@ class _Handle:
     in double or single precision (iparm(28) = 1: the matrix, the right-hand sides and the
     solutions in float32). Conditional numerical reproducibility (iparm(34), MKL's thread
     count): the same matrix factorizes to the same bits every time. Without it a single
-    factorization of case b's tangent, made again on the same handle, now and then gave
-    solutions of order one that differed by 5e-5 (double: 1e-13), so that a step repeated
-    from the same state (solver.transient: an FMU rollback) did not repeat exactly."""
+    factorization of the same tangent, made again on the same handle, can give solutions
+    that differ in the fifth digit (double: the thirteenth), so that a step repeated from
+    the same state (solver.transient: an FMU rollback) would not repeat exactly."""
 
     def __init__(self, single):
         pypardiso = _pypardiso()
@@ -233,8 +229,8 @@ class Pardiso(_Reusable):
     arrays (as solver.assembly.Reduction.matrix gives them).
 
     precision "double", or "single": the factorization and the solves in float32 (the
-    right-hand side and the solution converted), about 40 % faster to factorize and half
-    the time to solve; the solution's relative residual ||K x - b|| / ||b|| is then about
+    right-hand side and the solution converted), faster to factorize and to solve
+    (docs/benchmarks.md); the solution's relative residual ||K x - b|| / ||b|| is then about
     1e-5 to 1e-4 instead of 1e-13 (case b's tangent, docs/dev-notes/fast_path.md). Newton's residual
     stays in double, so the converged state is that of the double solver to the Newton
     tolerance; a direction only converges a little less. A single factorization falls back
@@ -340,7 +336,8 @@ def _pypardiso():
     """The pypardiso module, imported with PYPARDISO_MKL_RT set to the mkl package's
     libmkl_rt where the user did not set it: pypardiso looks the library up by name, which
     fails for a pip install's, and then globs all of sys.prefix for it at its import (and
-    for each solver it makes), 1.0-1.2 s here, inside the first step of a run."""
+    for each solver it makes): a slow walk of the whole environment, inside the first step
+    of a run."""
     if "PYPARDISO_MKL_RT" not in os.environ:
         from importlib import metadata
         try:

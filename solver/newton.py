@@ -19,12 +19,12 @@ s = 1 is kept when the state is admissible (no det F <= 0) and |g(1)| <= 0.5 |g(
 when g(1) has the sign of g(0) (still descending) and ||r_f|| did not grow (else s is
 halved until it did not: a contact kink ahead). Else g changed sign: its root is bracketed
 in (0, 1) and found by false position with the Illinois modification (the end that stays
-put twice has its g halved), which converges where plain secant steps cycle, as they did
+put twice has its g halved), which converges where plain secant steps cycle, as they do
 on the penalty kinks of lip/lip contact; the first s with |g(s)| <= 0.5 |g(0)| is
 taken, else the best one after max_ls + 4 evaluations. The norms of these tests are
 those of the residual on the free DOFs: the reactions on the prescribed ones are the
-load's, and near convergence their rounding decided the test (on the reference face's
-gesture of benchmarks/fast_path.py such steps were cut to 1/64 over seven residuals).
+load's, and near convergence their rounding would decide the test and cut good steps
+short.
 
 Secant model (``secant_search``): where the system has nonsmooth terms (contact), a step
 that fails the test at s = 1 is searched for on the model
@@ -37,23 +37,21 @@ ends, in between off by the tissue's curvature along one Newton step, where the 
 kinks and jumps are what the search must find. The model's step (tests as above, to
 |g| <= |g0| / 4 within 30 of its evaluations) is then evaluated whole and kept if it
 meets the test the model met, or if the model's search ended at its best step (a jump
-in the contact force, where g has no root: the exact search ended there too, after ten
-residuals) and the state is admissible; else the exact search runs. That evaluation is
-the next iterate's residual. A contact evaluation costs about a twelfth of a residual on
-the reference face (1.6 against 18-20 ms). On benchmarks/fast_path.py's case a
-(docs/dev-notes/fast_path.md) both changes took the residuals from 1,693 to 1,016, the
-lip outputs within 2e-5 mm.
+in the contact force, where g has no root: the exact search ends there too, after many
+more residuals) and the state is admissible; else the exact search runs. That evaluation
+is the next iterate's residual. A contact evaluation costs a small part of a residual
+(the contact's nodes only), so the model's search saves most of the residuals of an
+exact one (docs/dev-notes/fast_path.md).
 
 An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
 larger of the first two residuals) or that stalls (not halved over ``stall_window``
 iterations, checked from iteration stall_window + 4 on) fails the step, and the caller
 cuts back. So do ``stuck_after`` line searches in a row that cut the step to s <=
 ``stuck_fraction``: the iterate sits at a jump of the residual, where g changes sign with
-no root and the search ends at the jump. On the reference face's gesture of
-benchmarks/fast_path.py a lip slave whose nearest triangle switched between two
-equidistant faded (free) regions, each with its own face normal (a jump of 0.004 N at a
-rounding-level move), held ten substeps at t = 0.18 s for four to five such iterations
-each before the stall test failed them.
+no root and the search ends at the jump. Such a jump: a lip slave whose nearest
+triangle switches between two equidistant faded (free) regions, each with its own face
+normal (a jump in the force at a rounding-level move); without this test each such
+iterate runs on until the stall test fails it.
 
 Factorization reuse (``reuse``; the default None: in calls with a key, i.e. the substeps
 of solver.transient, not in static solves, which keep full Newton): modified Newton.
@@ -78,10 +76,10 @@ factorization's direction is taken at its full step or not at all: when the full
 fails the line search's test for s = 1 (or, once the force criterion holds, when ||r||
 grew), the step is dropped (counted in NewtonReport.stale_steps) and the tangent is
 factorized at u_k for a Newton step with the line search. A stale direction that
-overshoots is a poor one to search along: on the lip gesture of
-benchmarks/fast_path.py the search cut such steps to s ~ 0.02 over up to ten residual
-evaluations, and the next iterate refactorized anyway (a stale tangent without the
-stiffness of a contact that had closed since). On a reused factorization an iterate
+overshoots is a poor one to search along: the search cuts such a step to a small
+fraction over many residual evaluations, and the next iterate refactorizes anyway (a
+stale tangent lacks the stiffness of a contact that has closed since it was made). On a
+reused factorization an iterate
 costs a residual and a solve (no tangent), and the residual at the accepted step, when it
 was the last one evaluated, is the next iterate's. Once a step has been dropped in a
 call (``krylov_after_stale``, on by default), the later iterates of the call skip the
@@ -95,9 +93,9 @@ slowed, a stale step dropped, no descent) assembles only the nonsmooth terms' ta
 u_k (System.nonsmooth_tangent) and adds the rest of the key's last full assembly at u_j
 (kept on the linear solver as that assembly minus its nonsmooth part): the factorized
 matrix is K_smooth(u_j) + K_contact(u_k). Within a
-substep the tissue's tangent changes little (without contact a substep converges on its
-first factorization at a rate of 0.02-0.04 per iteration) while the contact's is what
-slowed the iteration (docs/dev-notes/fast_path.md). Only within ``partial_reach`` (mm,
+substep the tissue's tangent changes little (without contact a substep converges fast on
+its first factorization) while the contact's is what slows the iteration
+(docs/dev-notes/fast_path.md). Only within ``partial_reach`` (mm,
 the largest nodal displacement) of the full assembly's state: farther (a large jump, the
 bar of tests/test_fast_path.py) the tissue's tangent may be what went stale, and
 everything is assembled; a new key (the next substep) assembles everything too.
@@ -116,11 +114,10 @@ or no descent), before refactorizing, the direction solves the tangent with the 
 terms' part at u_k (and the status that the step predicts) by GMRES preconditioned with
 the factorization, its earlier solves recycled (solver.krylov); it is searched along like
 a new factorization's direction, and where GMRES does not reach its tolerance within its
-budget of solves the tangent is refactorized. It trades factorizations for solves:
-benchmarks/fast_path.py (docs/dev-notes/fast_path.md) case a 400 -> 144
-factorizations and 1-16 % less time, case b 182 -> 111 and a fifth less time with SuperLU,
-between 6 % more and 13 % less with single-precision PARDISO (whose factorization costs
-only six or seven solves), depending on the hour.
+budget of solves the tangent is refactorized. It trades factorizations for solves, so
+it saves most where a factorization costs many solves (SuperLU) and least with
+single-precision PARDISO, whose factorization costs only a few (docs/benchmarks.md,
+docs/dev-notes/fast_path.md).
 """
 
 from dataclasses import dataclass, field, replace
@@ -152,19 +149,17 @@ class NewtonOptions:
     # residual and a solve, a new factorization about six to seven of them (an assembly
     # with the tangent, the factorization, the line search's residuals), so a rate of 0.7
     # pays: 0.7^7 = 0.08. Where lip contact changes status between iterates a new tangent
-    # does not converge fast either. On benchmarks/fast_path.py, one run after the other,
-    # 0.7 took case a through fewer factorizations than 0.5 and 0.1 in less time (the same
-    # cutbacks, outputs within 3e-6 mm), case b through fewer within the machine's drift;
-    # 0.8 was no better. docs/dev-notes/fast_path.md.
+    # does not converge fast either. On benchmarks/fast_path.py 0.7 needs fewer
+    # factorizations than 0.5 or 0.1 for the same outputs, and 0.8 gains nothing
+    # (docs/dev-notes/fast_path.md).
     # Below the stall test's 0.5 ** (1 / stall_window) = 0.84.
     refactor_ratio: float = 0.7
     # Correct each direction for the contact status the step predicts, by low-rank updates
     # of the factorization (solver.contact_update); None: where the caller gives a key (the
-    # substeps of solver.transient), as reuse. Static solves keep the plain direction: the
-    # reference face's static OOP and OOP + BUC in one load step (as in
-    # tests/test_muscle_actions.py, teeth contact) took 66 and 124 iterations with it
-    # against 39 and 28 without on the half face, 63 and 93 against 40 and 29 on the full
-    # face (a scratch script).
+    # substeps of solver.transient), as reuse. Static solves keep the plain direction: on
+    # the reference face's static OOP and OOP + BUC in one load step (as in
+    # tests/test_muscle_actions.py, teeth contact) Newton takes more iterations with the
+    # correction than without, on the half and on the full face.
     contact_update: bool | None = None
     # Refactorize within a call (the factorization of this key slowed or its step failed)
     # with the smooth terms' tangent of the key's last full assembly, if made within
@@ -183,11 +178,10 @@ class NewtonOptions:
     secant_search: bool = True
     # Once a reused factorization's step has been dropped in a call, later iterates of that
     # call skip the plain reused direction and go to the Krylov one (or a refactorization):
-    # on benchmarks/fast_path.py at balanced's soft lip penalty (LIP_SOFT) 59 of 80
-    # reused directions of case a were dropped; with this, case a 162 -> 156 Newton
-    # iterations and 259 -> 218 residuals, case b 166 -> 157 and 235 -> 214, in
-    # alternation (at the stiff lip penalty, PENALTY, it cost case a a cutback).
-    # docs/dev-notes/fast_path.md.
+    # at balanced's soft lip penalty (LIP_SOFT) most reused directions of
+    # benchmarks/fast_path.py's case a are dropped, and skipping them after the first saves
+    # Newton iterations and residuals in both cases (at the stiff lip penalty, PENALTY,
+    # case a meets a cutback with it; docs/dev-notes/fast_path.md).
     krylov_after_stale: bool = True
 
 

@@ -20,24 +20,22 @@ err <= tol, and the next step is h * clip(0.9 sqrt(tol / err), 0.3, 2), at most 
 Nodes in contact are left out: those that a nonsmooth term (contact, ``Term.nonsmooth``)
 pushed on at either end of the substep. Their velocity jumps at an impact or a release and,
 while they touch, follows the penalty's stiff mode (a penalty stops a node within
-sqrt(m / k), microseconds), which no step resolves; the estimate there only shrank the
-steps (on the gesture of
-benchmarks/fast_path.py, paper level, such a node held the largest estimate in nearly
-every rejected substep). The rest of the face, the neighbours of those nodes included,
-still sets it; the lip outputs of benchmarks/accuracy_vs_time.py's runs moved by 0.002 mm
-at most (docs/accuracy.md).
+sqrt(m / k), microseconds), which no step resolves; the estimate there would only shrink
+the steps (on the paper-level gesture of benchmarks/fast_path.py such a node holds the
+largest estimate in nearly every rejected substep). The rest of the face, the neighbours
+of those nodes included, still sets it; leaving the contact nodes out moves the lip
+outputs of benchmarks/accuracy_vs_time.py's runs by 0.002 mm at most (docs/accuracy.md).
 A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
 the caller's step fails and the model goes back to its state at t0.
 
 Landing on t1: a substep shortened to land on t1 (h < the proposal) does not shrink the
 next proposal: that is the larger of the proposal and h times the growth factor, when
-the factor is >= 1. (Before, the shortened step's growth set it: with caller steps of
-10 ms and 5 ms substeps a 1.7 ms remnant was followed by 3.3 ms and 5 ms substeps and
-another remnant, three substeps per caller step where two do; on the gesture of
-benchmarks/fast_path.py, case b, 90 substeps instead of 102.) The remnant
+the factor is >= 1. (Were the shortened step's growth to set it, caller steps of 10 ms
+with 5 ms substeps would run a 1.7 ms remnant, then 3.3 ms and 5 ms substeps and another
+remnant: three substeps per caller step where two do.) The remnant
 R - (n - 1) h of a caller step may still be tiny. With ``even_steps`` the span left,
 R = t1 - t, is split into n = ceil(R / h) equal substeps of R / n <= h (each still
-error-controlled). Off by default: on the gesture of benchmarks/fast_path.py it changed
+error-controlled). Off by default: on the gesture of benchmarks/fast_path.py it changes
 the substep sequence through the lip contact for the worse (more Newton iterations, no
 fewer substeps).
 
@@ -46,17 +44,17 @@ u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}) (the velocity extrapolated from the 
 substeps of the same caller step; velocity for the first), "none" u_n. Where Newton fails
 from a predictor it is tried once more from u_n before the cutback. The predictor moves
 only the start of the iteration, not the converged u_{n+1} (to the Newton tolerance).
-"quadratic" took more Newton iterations than "velocity" on the reference face's gesture
-(benchmarks/fast_path.py, 0.02 s: 103 against 86), hence the default.
+"quadratic" takes more Newton iterations than "velocity" on the reference face's gesture
+of benchmarks/fast_path.py, hence the default.
 Each caller step starts with a new factorization of the tangent (Newton reuses it over
 the substeps, solver.newton), so that a step repeated from the same state (an FMU
 rollback) repeats exactly. Newton's key, what the tangent depends on besides u, is the
 substep size to 10 significant digits (the substep that lands on t1, t1 - t, is a few ulps
 off the split's size) and the damping matrix's generation (solver.terms.inertia: K_n is
 rebuilt on each substep's start state by default, and beta K_n / h is the tangent's
-largest part, so a factorization then serves one substep; on the lip gesture of
-benchmarks/fast_path.py one made on the previous substep, 0.2 mm away, left 40 % of the
-residual in its linear model, and its step was dropped: a scratch diagnosis).
+largest part, so a factorization then serves one substep: one made on the previous
+substep leaves a large part of the residual in its linear model, and its step is
+dropped).
 """
 
 from dataclasses import dataclass, field

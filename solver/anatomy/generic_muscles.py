@@ -108,10 +108,9 @@ def teeth():
     there), so that a free node sliding along them never passes their outer edge (where a
     slave is released: a force jump).
 
-    (They used to overlap by 4 mm on either side of the row line, two coincident sheets
-    there: a lip node near the sheets' free edges inside that band was pushed by both,
-    then by one, as its nearest point crossed an edge: a force jump that made Newton
-    chatter.)"""
+    One surface rather than two overlapping sheets: where two coincident sheets overlap, a
+    lip node near their free edges is pushed by both, then by one, as its nearest point
+    crosses an edge: a force jump that makes Newton chatter."""
     reach = TEETH_PHI + TEETH_MARGIN / 70.0        # about TEETH_MARGIN along the arch
     phi = np.linspace(-reach, reach, 2 * int(np.ceil(np.degrees(reach))) + 1)  # 1 deg apart
     r = shape.row_line(phi)

@@ -51,7 +51,7 @@ def _element(ue, dndX, wgp, p, form, need_k, fe, ke):
 def _element_ws(ue, dndX, wgp, p, form, need_k, fe, ke, mws):
     """_element with the material point's scratch mws (solver.kernels.material_point).
     The element's own arrays stay local: as locals LLVM knows they do not alias fe and
-    ke (the tangent's loops ran 20 % slower on arrays passed in)."""
+    ke (the tangent's loops are slower on arrays passed in)."""
     fe[:] = 0.0
     if need_k:
         ke[:, :] = 0.0

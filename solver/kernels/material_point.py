@@ -2,8 +2,8 @@
 
 point_response_ws takes its scratch arrays from the caller (``workspace()``, allocated
 once per block of bricks by solver.kernels.brick) instead of seven small heap arrays at
-every Gauss point; with the residual formed without B, a residual-only pass over case b's
-bricks went from 13.9-17.0 to 12.0-12.8 ms (docs/dev-notes/fast_path.md).
+every Gauss point, so that the residual and tangent passes allocate nothing per point
+(docs/dev-notes/fast_path.md).
 """
 
 import numpy as np

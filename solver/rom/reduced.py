@@ -1,7 +1,7 @@
 r"""The reduced operator: forces and tangents of a face model in reduced coordinates.
 
-This is the first implementation, kept as the reference of the fast online step
-(solver.rom.online: the same quantities, tests/test_rom_online.py) and used in training.
+This is the reference implementation of the fast online step (solver.rom.online: the
+same quantities, checked against it by tests/test_rom_online.py), also used in training.
 
 With the basis V (3 n, r) (orthonormal on the free DOFs, zero rows on the constrained
 ones) the displacements are u = V q. Backward Euler from (q_n, v_n) with step h, the

@@ -32,8 +32,8 @@ Two Newton methods, for the same equations:
     the root as full Newton stopping at |dq| <= utol (tests compare the two).
 * "reference": solver.rom.reduced.ReducedOperator, the bricks' tangent refreshed every
   `refresh` substeps, cables and contact tangents at every iteration, C_r rebuilt every
-  `damping_refresh` substeps (the first implementation: the accuracy figures of the first
-  version of docs/realtime.md), converged when |dq| <= utol.
+  `damping_refresh` substeps (the reference the fast method is tested against,
+  tests/test_rom_online.py), converged when |dq| <= utol.
 
 utol in mm: V is orthonormal, so |dq| is the Euclidean norm of the displacement
 correction over all DOFs.
@@ -262,7 +262,7 @@ class Stepper:
             r_prev, dn_prev = rn, dn
         return None, self.max_iter, f"no convergence in {self.max_iter} iterations"
 
-    # -- reference Newton (the first implementation) --------------------------------------
+    # -- reference Newton (method "reference") -------------------------------------------
     def _newton_reference(self, q_n, v_n, h, a, t):
         op = self.op
         A = self.M_r / h ** 2 + self.C_r / h

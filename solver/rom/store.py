@@ -67,7 +67,8 @@ def model_key(scene):
             "alpha": float(scene.alpha), "beta": float(scene.beta),
             "density": float(scene.density), "formulation": scene.formulation,
             "gravity": scene.gravity,
-            # only where not the default, so that the keys of earlier models stand
+            # only where not the default: a model at the default penalty keeps the key it
+            # has without this entry
             **({"lip_penalty": float(scene.lip_penalty)} if scene.lip_penalty != PENALTY
                else {})}
 

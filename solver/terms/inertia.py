@@ -11,12 +11,12 @@ symmetric and positive semi-definite at every state (P = v^T C v >= 0) and objec
 rigid rotation of the tissue is not damped, and an isochoric motion of the deformed tissue
 meets the shear modulus, not the bulk one. The rest tangent K0 (beta K0 v) is not: where the
 tissue has turned, K0 reads part of an isochoric rate as a volume change and resists it with
-the bulk modulus (2/d = 500 times the shear modulus), and the face crept towards its static
-equilibrium over tens of seconds instead of settling within 0.5 s (OOP + BUC held at 0.5,
-no contact: 3.3 mm from it after 10 s). K_n is rebuilt when a node has moved more than
-``refresh`` (mm) since the last build, once per substep at most, and is held fixed within
-the substep, so the step stays a linear damper: r += C (u - u_n) / h, K += C / h. Passive:
-the stiffening of active muscle does not raise the damping. The current full tangent would
+the bulk modulus (2/d = 500 times the shear modulus), so that a face held under OOP + BUC
+at 0.5 (no contact) creeps towards its static equilibrium over tens of seconds of
+simulated time, where with K_n it settles within half a second. K_n is rebuilt when a
+node has moved more than ``refresh`` (mm) since the last build, once per substep at most,
+and is held fixed within the substep, so the step stays a linear damper:
+r += C (u - u_n) / h, K += C / h. Passive: the stiffening of active muscle does not raise the damping. The current full tangent would
 follow stiffening, but it can lose definiteness (and with it dissipation) under compression
 and contact; with alpha = 40 1/s and beta = 0.03 s every mode is overdamped anyway.
 

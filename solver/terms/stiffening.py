@@ -109,9 +109,8 @@ class Stiffening(Elasticity):
     c10, c20 are added to the host's parameters of those bricks in the host's own kernel
     pass (W_iso is linear in c10 and c20, and the isochoric part is integrated at the
     Gauss points with the full F in both formulations, solver.kernels.brick): the same
-    residual and tangent to rounding without a second pass over the bricks, which cost
-    1.2 ms of 13 ms per residual on case b of benchmarks/fast_path.py (a scratch
-    timing). This term then has no blocks and assembles nothing itself."""
+    residual and tangent to rounding without a second pass over the bricks. This term then
+    has no blocks and assembles nothing itself."""
 
     name = "stiffening"
 
