@@ -8,42 +8,20 @@
 and, in all four places, "realtime": the reduced-order model of solver.rom (REDUCED
 below; docs/realtime.md).
 
-A preset replaces the numerical fields of a scene: the mesh level (of the generic face; an
-ANSYS face keeps its own mesh), half face, substep error tolerance and largest substep,
-Newton tolerance, element formulation and the lip/lip contact's penalty. The model
-itself (anatomy, muscles, effects such as stiffening and contact, schedules, outputs)
-stays the scene's. Where several settings meet, the most specific wins: keyword
-overrides of Simulation (and the command line's --level, --full) over the preset given
-to Simulation, that preset over the scene file, and in a scene file its own keys over
-its [scene] fidelity.
+A preset is a set of a scene's numerical fields (PRESETS below: the generic face's mesh
+level and brick rows, half face, element formulation, substep and Newton tolerances, the
+lip/lip contact's penalty); the model itself (anatomy, muscles, effects, schedules,
+outputs) stays the scene's. An ANSYS face keeps its own mesh: level and rows do not
+apply to it. Where several settings meet, the most specific wins: keyword overrides of
+Simulation (and the command line's --level, --full) over the preset, the preset over the
+scene file, and in a scene file its own keys over its [scene] fidelity.
 
-The presets are picked from the Pareto front (largest error over time in lip aperture and
-protrusion against CPU time) of the default sweep of `python benchmarks/accuracy_vs_time.py
---cost cpu` (a 0.1 s lip gesture with contact, against the fine half face at DEFAULT
-tolerances; docs/accuracy.md):
-
-    preset    mesh, DOF                   error aperture / protrusion   real-time factor (CPU)
-    fast      medium half, 6300           0.21 / 0.06 mm                36
-    balanced  medium half 2 rows, 11025   0.16 / 0.15 mm                76
-    accurate  fine half (2 rows), 50925   the reference                 2317
-
-Through-thickness rows buy more than in-plane levels (one row per layer stalls
-near 0.18 mm); tolerances cost little accuracy against the mesh error; the half face
-gives the full face's lip outputs; mean dilatation is needed ("full" locks). The coarse
-level is cheap and 1.2 mm off (the reduced-order `realtime` fidelity is built on it).
-
-What each preset sets is in PRESETS below: mesh level, rows, half face, formulation, and
-tolerances with the lip/lip contact's penalty (`lip_penalty`, N/mm^3): `accurate`
-DEFAULTS; `balanced` STEP_LOOSE (DEFAULTS but a substep error tolerance of 5e-2 mm,
-Newton 1e-4 on the residual and 1e-2 mm on its last update); `fast` FAST (STEP_LOOSE's
-tolerances but LOOSE's 10 ms substeps). A Newton residual tolerance of 1e-3 took case a of
-benchmarks/fast_path.py to a cutback. `balanced` and `fast` soften the lip penalty to
-LIP_SOFT (0.3), `accurate` keeps PENALTY (1, the default of a scene): at 1 the lip/lip
-contact is two thirds of the reference face's time on benchmarks/fast_path.py
-(docs/dev-notes/fast_path.md); at 0.3, OOP + BUC at 1 on the default scene puts a lip
-node 0.056 mm behind the other lip's bilinear face, over the 0.05 mm of
-solver/stability.py (0.049 mm at 0.5, 0.041 mm at 1; tests/test_stability.py). On an ANSYS face a preset sets the tolerances and half face
-only (rows and level are the generic face's).
+The presets are points of the Pareto front (largest error in lip aperture and protrusion
+against CPU time) of `python benchmarks/accuracy_vs_time.py --cost cpu`, each loosened as
+far as the mesh error hides the tolerances' and as the contact gesture of
+benchmarks/fast_path.py still runs through on the reference face. docs/accuracy.md has
+the figures; `python benchmarks/presets_table.py` writes every preset's values to
+docs/presets.md.
 """
 
 from .errors import ParameterError
@@ -53,10 +31,14 @@ LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4, newton_utol=1
 DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5,
                 lip_penalty=PENALTY)
 # The lip/lip contact's penalty of `balanced` and `fast` (N/mm^3; PENALTY = 1 elsewhere):
-# the module docstring
+# at PENALTY the lip/lip contact costs most of the reference face's time on the contact
+# gesture of benchmarks/fast_path.py (docs/dev-notes/fast_path.md); at LIP_SOFT the lips
+# under OOP + BUC at 1 go a little past the 0.05 mm contact tolerance of
+# solver/stability.py (a strict xfail of tests/test_stability.py).
 LIP_SOFT = 0.3
 # DEFAULTS but the substep error tolerance 5e-2 mm, and Newton 1e-4 on the residual and
-# 1e-2 mm on its last update: the module docstring
+# 1e-2 mm on its last update (a residual tolerance of 1e-3 takes benchmarks/fast_path.py's
+# case a to a cutback)
 STEP_LOOSE = dict(DEFAULTS, substep_tol=5e-2, newton_rtol=1e-4, newton_utol=1e-2,
                   lip_penalty=LIP_SOFT)
 # LOOSE but the substep error tolerance and Newton's last update, as STEP_LOOSE's (so that
