@@ -11,9 +11,9 @@ a message, in this process).
 Time stepping (solver.rom.stepper): backward Euler in reduced coordinates at fixed
 substeps of at most h = 1 ms, activations ramping within a caller's step as in the full
 model (hold "ramp"); method "fast" (default): modified Newton with a frozen reduced
-tangent on the fast online operator (solver.rom.online); "reference": the first
-implementation (full tangents of cables and contact at every iteration, the generic
-contact path). Converged when |dq| <= utol (mm). A substep that does not converge in
+tangent on the fast online operator (solver.rom.online); "reference": the reference
+implementation the fast one is tested against (full tangents of cables and contact at
+every iteration, the generic contact path). Converged when |dq| <= utol (mm). A substep that does not converge in
 max_iter iterations (or inverts a brick) is split in four, twice at most.
 
 Damping: C = alpha M + beta K_n as in the full model, K_n the passive small-strain
