@@ -6,12 +6,13 @@ a = 0.5 and 1 on both anatomies, and pictures of the paper's cases (its Figures 
 Static equilibrium, half face (symmetric activations), activation stiffening on (the
 paper's whole-brick rule, effects.stiffening_rule = "intersect", as in its scenes), lip/teeth
 contact on (unless --no-contact); no lip/lip contact (static Newton with pressed lips is not
-robust yet: the transient scenes carry it), so an aperture of 0 may mean lips crossing. The reference face is used where
+robust: the transient scenes carry it), so an aperture of 0 may mean lips crossing. The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
 """
 
 import argparse
 import os
+import subprocess
 import time
 from pathlib import Path
 
@@ -27,6 +28,17 @@ REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
 CASES = {"RIS": {"RIS": 1.0}, "BUC": {"BUC": 1.0}, "OOP": {"OOP": 1.0},
          "OOP + BUC": {"OOP": 1.0, "BUC": 1.0}}
 KEYS = ("lip_aperture", "lip_protrusion", "lip_width")
+
+
+def commit():
+    """The checkout's short commit, with " with uncommitted changes" where the tracked files
+    differ from it ("unknown" outside a git checkout)."""
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True,
+                              text=True).stdout.strip()
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    return head + (" with uncommitted changes" if git("status", "--porcelain",
+                                                     "--untracked-files=no") else "")
 
 
 def solve(anatomy, activations, contact):
@@ -56,7 +68,8 @@ def main(argv=None):
         anatomies["reference"] = load_anatomy(REFERENCE, half=True)
     lines = ["# What each muscle does", "",
              f"Made by `python examples/muscle_atlas.py --level {args.level}"
-             f"{' --no-contact' if not contact else ''}`: static equilibrium, half face, "
+             f"{' --no-contact' if not contact else ''}` at commit {commit()}: static "
+             "equilibrium, half face, "
              f"stiffening on (the paper's whole-brick rule), lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
              "(an aperture of 0 may mean crossing lips). Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "

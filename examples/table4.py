@@ -16,6 +16,7 @@ Writes OUT/table4.md and out/table4.csv.
 import argparse
 import os
 import csv
+import subprocess
 import time
 from pathlib import Path
 
@@ -31,6 +32,17 @@ REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
 # the paper's Table 4: maximum compressive strain in the OOP region at t = 0.01 ... 0.1 s
 PAPER = (-0.13, -0.13, -0.19, -0.27, -0.33, -0.41, -0.45, -0.51, -0.55, -0.56)
 PAPER_AVG_RATE = -6.5   # 1/s, the paper's maximum average compressive strain rate
+
+
+def commit():
+    """The checkout's short commit, with " with uncommitted changes" where the tracked files
+    differ from it ("unknown" outside a git checkout)."""
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True,
+                              text=True).stdout.strip()
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    return head + (" with uncommitted changes" if git("status", "--porcelain",
+                                                     "--untracked-files=no") else "")
 
 
 def run(label, anatomy):
@@ -112,7 +124,8 @@ def main(argv=None):
     effects = Simulation("table4_oop", loaded_anatomy=next(iter(faces.values()))).scene.effects
     cmd = "python examples/table4.py" + (f" --level {args.level}" if args.level != "coarse" else "")
     lines = ["# The paper's Table 4: OOP over 0.1 s", "",
-             f"Made by `{cmd}` (scene `table4_oop`: OOP ramped from a = 0 to 1 over 0.1 s). Strain: "
+             f"Made by `{cmd}` at commit {commit()} (scene `table4_oop`: OOP ramped from a = 0 "
+             "to 1 over 0.1 s). Strain: "
              "the most compressive logarithmic principal strain over the OOP region's bricks.",
              ""]
     all_rows = []
