@@ -68,24 +68,17 @@ at a gap s, with a stiffness growing from zero, so a node that grazes the surfac
 kink for Newton's line search to stop at; the penetration at a force f >= k_i s is f / k_i
 as with the pure law, and a node pressed by less stays within s of the surface. The
 tangent is exact but for the curvature of the distance around an edge or a vertex closer
-than s. Measured (`python benchmarks/fast_path.py --only b --paths new --duration 0.1
---set contact.smoothing=S`, docs/dev-notes/fast_path.md): 43.9 s, 478 Newton iterations and 259
-factorizations at s = 0; 36.0 s at s = 0.02 mm; 26.8 s, 391 and 185 at s = 0.05 mm, whose
-lip aperture and protrusion then differ by 0.04 mm; over the whole 0.3 s gesture, though,
-s = 0.05 mm stalled at t = 0.156 s after every cutback. Off by default (s = 0).
+than s. Off by default (s = 0): over the fast-path gesture the smoothed law stalls where
+the pure one goes through (docs/dev-notes/fast_path.md has the measurements).
 
-Penalty choice: PENALTY = 1 N/mm^3, pure penalty, no augmented Lagrangian. A node with
-the force f penetrates by f / (penalty A_i), i.e. a contact pressure p by p / penalty;
-lip-node areas on the reference face are 2 - 20 mm^2 (slave stiffness 2 - 20 N/mm). On the
-reference face (teeth contact, the lip-surface nodes within 3 mm of the teeth): OOP 0.5
-puts 0.16 N on the lower teeth at 0.006 mm, OOM 1.0 0.38 N at 0.011 mm, OOP + OOM 1.0
-0.79 N at 0.019 mm: about 0.025 mm per N, half the 0.05 mm tolerance at 1 N. Stiffer
-penalties converge worse with Newton's current line search, whose secant steps do not
-bracket the kink of a new contact, so that an iteration often stops just before it: OOP
-0.5 takes 14 iterations at 1 N/mm^3, 51 at 2, 115 at 10 (15 with a bracketing line
-search). An augmented-Lagrangian update in commit() would come once per load step, too
-rarely to converge the multipliers, and the penetrations above are already 2.5 to 15 times
-below the tolerance.
+Penalty choice: pure penalty, no augmented Lagrangian. A node with the force f
+penetrates by f / (penalty A_i), i.e. a contact pressure p by p / penalty; lip-node areas
+on the reference face are 2 - 20 mm^2 (slave stiffness 2 - 20 N/mm at 1 N/mm^3). Lip on
+lip: PENALTY = 1 N/mm^3 (a scene's lip_penalty), about 0.025 mm per N on the reference
+face's lip nodes. Teeth: TEETH_PENALTY = 2 N/mm^3, as the cheeks carry the largest
+forces (BUC presses them on the teeth). A stiffer penalty costs Newton iterations at each
+new contact; an augmented-Lagrangian update in commit() would come once per step, too
+rarely to converge the multipliers.
 
 RigidContact: node-on-rigid-surface (lips and cheeks on the teeth: on the reference face
 60 lip and 16 cheek nodes per jaw, half face). The sheet (an open
@@ -106,11 +99,9 @@ fades) takes a constant offset delta_i (.offset) that puts it where the law is f
 the law sees x_i + delta_i: the anatomy as given is the rest state, with no contact force
 (ANSYS's contact option to exclude the initial penetration). As a constant, delta_i leaves
 the force and tangent formulas as they are. The reference face has six such cheek nodes
-on the upper teeth, two of them beyond a rim 0.42 mm behind its plane with 6.1 N each:
-without the offset a run with every muscle at rest moved the lips by 0.013 / 0.016 mm
-(aperture / protrusion) in 0.1 s, and the first 10 ms of benchmarks/fast_path.py's case a
-took 110 Newton iterations (13 with it; docs/dev-notes/fast_path.md). LipContact has
-no offset: neither anatomy's lips push on each other at rest (tests/test_contact.py).
+on the upper teeth, two of them beyond a rim 0.42 mm behind its plane: without the
+offset the face at rest would move under their contact forces. LipContact has no offset:
+neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
 and the reverse). Each quad of a lip surface is split into four triangles around its
