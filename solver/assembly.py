@@ -16,7 +16,7 @@ from .kernels.scatter import scatter_matrices, scatter_vectors
 def block_dofs(conn):
     """(k, nloc) node ids -> (k, 3 nloc) DOF ids, node-major."""
     conn = np.asarray(conn, dtype=np.int64)
-    return (3 * conn[:, :, None] + np.arange(3)).reshape(len(conn), -1)
+    return (3 * conn[:, :, None] + np.arange(3)).reshape(len(conn), 3 * conn.shape[1])
 
 
 class Pattern:

@@ -751,6 +751,10 @@ class LipContact(_Report, Term):
         for q in self.passes:
             nrm = self.normals[q["master"]].update(x)
             s = len(q["slaves"])
+            if not len(q["pair_tri"]):            # no candidates (lips apart): no law
+                out.append((np.zeros((s, 15), dtype=np.int64), np.zeros((s, 15)), q["k"],
+                            np.full(s, np.nan)))
+                continue
             p, v, pair = np.empty(s), np.empty((s, 12)), np.empty(s, dtype=np.int64)
             surface_linear_gaps(x, q["slaves"], nrm.tris, q["ptr"], q["pair_tri"], *nrm.args(),
                                 self.depth, q["pair_free"], p, v, pair)
