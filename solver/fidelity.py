@@ -30,20 +30,15 @@ from .terms.contact import PENALTY
 LOOSE = dict(substep_tol=1e-2, max_substep=1e-2, newton_rtol=1e-4, newton_utol=1e-4)
 DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6, newton_utol=1e-5,
                 lip_penalty=PENALTY)
-# The lip/lip contact's penalty of `balanced` and `fast` (N/mm^3; PENALTY = 1 elsewhere):
-# at PENALTY the lip/lip contact costs most of the reference face's time on the contact
-# gesture of benchmarks/fast_path.py (docs/dev-notes/fast_path.md); at LIP_SOFT the lips
-# under OOP + BUC at 1 go a little past the 0.05 mm contact tolerance of
-# solver/stability.py (a strict xfail of tests/test_stability.py).
-LIP_SOFT = 0.3
 # DEFAULTS but the substep error tolerance 5e-2 mm, and Newton 1e-4 on the residual and
 # 1e-2 mm on its last update (a residual tolerance of 1e-3 takes benchmarks/fast_path.py's
-# case a to a cutback)
-STEP_LOOSE = dict(DEFAULTS, substep_tol=5e-2, newton_rtol=1e-4, newton_utol=1e-2,
-                  lip_penalty=LIP_SOFT)
+# case a to a cutback); the lip penalty stays PENALTY: a softer one lets the reference
+# face's lips into each other by more than the 0.05 mm contact tolerance of
+# solver/stability.py under OOP + BUC at 1
+STEP_LOOSE = dict(DEFAULTS, substep_tol=5e-2, newton_rtol=1e-4, newton_utol=1e-2)
 # LOOSE but the substep error tolerance and Newton's last update, as STEP_LOOSE's (so that
 # no preset is looser than a faster one)
-FAST = dict(LOOSE, substep_tol=5e-2, newton_utol=1e-2, lip_penalty=LIP_SOFT)
+FAST = dict(LOOSE, substep_tol=5e-2, newton_utol=1e-2, lip_penalty=PENALTY)
 
 PRESETS = {
     "fast": dict(level="medium", rows=1, half=True, formulation="mean_dilatation", **FAST),

@@ -178,10 +178,9 @@ class NewtonOptions:
     secant_search: bool = True
     # Once a reused factorization's step has been dropped in a call, later iterates of that
     # call skip the plain reused direction and go to the Krylov one (or a refactorization):
-    # at balanced's soft lip penalty (LIP_SOFT) most reused directions of
-    # benchmarks/fast_path.py's case a are dropped, and skipping them after the first saves
-    # Newton iterations and residuals in both cases (at the stiff lip penalty, PENALTY,
-    # case a meets a cutback with it; docs/dev-notes/fast_path.md).
+    # at a soft lip penalty (0.3 N/mm^3) most reused directions of benchmarks/fast_path.py's
+    # case a are dropped, and skipping them after the first saves Newton iterations and
+    # residuals (docs/dev-notes/fast_path.md).
     krylov_after_stale: bool = True
 
 

@@ -136,19 +136,21 @@ def test_lip_tangent_matches_finite_differences_with_master_rotation(rng, smooth
     assert err_k < 1e-5 and err_r < 1e-5
 
 
-def test_centred_triangles_stay_within_an_eighth_of_a_warped_quads_face():
+@pytest.mark.parametrize("divisions, share", [(1, 8), (2, 32)])
+def test_centred_triangles_stay_within_a_share_of_a_warped_quads_face(divisions, share):
     """A twisted quad z = h s t over the square [-1, 1]^2 (its diagonals' midpoints 2 h
     apart: the warp): the four triangles around its centre (centred_triangles) stay
-    within warp / 8 of the bilinear face, a split along one diagonal within warp / 2;
-    the virtual centre is the corners' mean and each triangle's vertices are its weights
-    times the corners."""
+    within warp / 8 of the bilinear face, the 16 of the 2 x 2 subdivision within
+    warp / 32, a split along one diagonal within warp / 2; each triangle's vertices are
+    its weights times the corners, and the virtual vertices lie on the bilinear face."""
     from solver.terms.contact import centred_triangles
     h = 0.3
     corners = np.array([[-1.0, -1.0, h], [1.0, -1.0, -h], [1.0, 1.0, h], [-1.0, 1.0, -h]])
-    tris, centres, quad, weights = centred_triangles(np.array([[0, 1, 2, 3]]), 4)
-    x = np.vstack([corners, corners[centres].mean(axis=1)])
-    assert len(tris) == 4 and (tris[:, 2] == 4).all()
+    tris, vn, vw, quad, weights = centred_triangles(np.array([[0, 1, 2, 3]]), 4, divisions)
+    x = np.vstack([corners, np.einsum("cb,cbi->ci", vw, corners[vn])])
+    assert len(tris) == 4 * divisions ** 2
     np.testing.assert_allclose(np.einsum("tab,tbi->tai", weights, corners[quad]), x[tris])
+    np.testing.assert_allclose(x[4:, 2], h * x[4:, 0] * x[4:, 1], atol=1e-12)
 
     def deviation(triangles):
         worst = 0.0
@@ -160,9 +162,23 @@ def test_centred_triangles_stay_within_an_eighth_of_a_warped_quads_face():
         return worst
 
     warp = 2 * h
-    assert deviation(tris) == pytest.approx(warp / 8, rel=1e-3)
+    assert deviation(tris) == pytest.approx(warp / share, rel=1e-3)
     split = np.array([[0, 1, 2], [0, 2, 3]])
     assert deviation(split) == pytest.approx(warp / 2, rel=1e-3)
+
+
+def test_subdivided_faces_share_their_edge_midpoints():
+    """Two quads and a triangle (a degenerate quad) sharing edges, at divisions 2: one
+    midpoint vertex per shared edge, so that the only free edges are the outline's (16 +
+    16 + 4 triangles; 9 distinct edges, 2 of them shared: an outline of 7, halved)."""
+    from solver.terms.contact import _Topology, centred_triangles
+    faces = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [2, 6, 5, 5]])
+    tris, vn, vw, _, _ = centred_triangles(faces, 7, 2)
+    assert len(tris) == 36
+    mids = [v for v in range(len(vn)) if (vw[v] == [0.5, 0.5, 0.0, 0.0]).all()]
+    assert len(mids) == 9
+    topo = _Topology(tris, 7 + len(vn))
+    assert topo.free_edge.sum() == 2 * 7
 
 
 def test_setting_the_penalty_scales_every_contact_force(rng):
@@ -596,7 +612,7 @@ def test_lip_contact_fades_beyond_the_edge_of_a_slaves_candidates():
     # slave sliding off it at a fixed depth must not see its force jump (it did: the sign
     # test used the pseudo-normal of an edge whose other face was no candidate)
     mesh, ida, idb, fa, fb = two_blocks()
-    term = LipContact(mesh, fb, fa, max_pairs=1, fade=0.5)
+    term = LipContact(mesh, fb, fa, max_pairs=1, fade=0.5, divisions=1, follow=False)
     q = term.passes[0]                       # B's bottom nodes on A's top
     assert np.all(np.diff(q["ptr"]) == 1) and q["pair_free"].all()
     run = Runner(term, mesh.n_nodes)
@@ -622,7 +638,8 @@ def test_faded_lip_penalty_has_consistent_derivatives_over_the_masters(rng, smoo
     stays continuous where the region meets a free vertex's; its turn is in the
     derivative)."""
     mesh, ida, idb, fa, fb = two_blocks(rng=rng, jitter=0.15)
-    term = LipContact(mesh, fb, fa, max_pairs=1, fade=1.0, smoothing=smoothing)
+    term = LipContact(mesh, fb, fa, max_pairs=1, fade=1.0, smoothing=smoothing,
+                      divisions=1, follow=False)
     u = rng.normal(0.0, 0.01, (mesh.n_nodes, 3))
     u[idb] += [0.8, 0.5, -0.2]
     run = Runner(term, mesh.n_nodes)
@@ -783,14 +800,15 @@ def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_t
     pairs, and the rest pairs come back exactly with the rest state (restore)."""
     from solver.system import System
     mesh, ida, idb, fa, fb = two_blocks()
-    term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0)
+    term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0, divisions=1)
     q = term.passes[0]
     rest = (q["ptr"].copy(), q["pair_tri"].copy())
     sysm = System([term], mesh.n_nodes, [])
     u = np.zeros((mesh.n_nodes, 3))
     u[idb] = [2.5, 0.0, -0.05]
     x = mesh.nodes + u
-    over = (np.abs(x[q["slaves"], 0]) < 3.9) & (np.abs(x[q["slaves"], 1]) < 3.9)
+    over = (np.abs(x[q["slaves"], 0]) < 3.9) & (np.abs(x[q["slaves"], 1]) < 3.9) \
+        & (np.abs(x[q["slaves"], 2] + 0.05) < 1e-9)                     # B's pressed bottom
     run = Runner(term, mesh.n_nodes)
     run(u, False)
     full = 0.05 * q["k"]

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from solver.errors import ParameterError
-from solver.fidelity import FIDELITIES, LIP_SOFT, PRESETS, apply_fidelity
+from solver.fidelity import FIDELITIES, PRESETS, apply_fidelity
 from solver.scene import LEVELS, Scene, SceneError, parse_scene
 from solver.simulation import Simulation
 from solver.terms.contact import PENALTY, TEETH_PENALTY
@@ -56,18 +56,17 @@ def test_presets_rise_in_resolution_and_do_not_loosen_tolerances_in_order():
 
 
 def test_the_lip_penalty_of_a_preset_reaches_the_lip_contact_only():
-    """`balanced` softens the lip/lip penalty (a numerical setting,
-    docs/dev-notes/fast_path.md): its LipContact's slave stiffnesses are LIP_SOFT /
-    PENALTY times those of the scene's default, the teeth's stay; a scene file's own
-    lip_penalty is checked."""
+    """A lip_penalty override (here 0.3 N/mm^3 over `balanced`, whose own is PENALTY)
+    reaches the LipContact only: its slave stiffnesses are 0.3 / PENALTY times those of the
+    preset's, the teeth's stay; a scene file's own lip_penalty is checked."""
     scene = Scene(duration=0.01, lip_contact=True, teeth_contact=True)
-    soft = Simulation(scene, fidelity="balanced")
-    stiff = Simulation(scene, fidelity="balanced", lip_penalty=PENALTY)
-    assert soft.scene.lip_penalty == LIP_SOFT < PENALTY == stiff.scene.lip_penalty
+    soft = Simulation(scene, fidelity="balanced", lip_penalty=0.3)
+    stiff = Simulation(scene, fidelity="balanced")
+    assert soft.scene.lip_penalty == 0.3 < PENALTY == stiff.scene.lip_penalty
     terms = [{t.name: t for t in sim.contact} for sim in (soft, stiff)]
-    assert terms[0]["lip_contact"].penalty == LIP_SOFT
+    assert terms[0]["lip_contact"].penalty == 0.3
     assert terms[0]["lip_contact"].k == pytest.approx(terms[1]["lip_contact"].k
-                                                      * LIP_SOFT / PENALTY)
+                                                      * 0.3 / PENALTY)
     teeth = [n for n in terms[0] if n != "lip_contact"]
     assert teeth and all(terms[i][n].penalty == TEETH_PENALTY for n in teeth for i in (0, 1))
     assert parse_scene({"solver": {"lip_penalty": 0.5}}).lip_penalty == 0.5

@@ -67,10 +67,11 @@ def test_halving_every_substep_changes_the_outputs_little():
 def test_quick_cases_through_the_fmu(fmu, tmp_path):
     import subprocess
     import sys
-    names = ["all_muscles_step", "bang_bang_20hz", "oop_buc_contact", "pressed_released",
-             "switching_0", "switching_1", "switching_2", "rollback_pressed", "tiny_steps",
-             "huge_steps", "pressed_100ms_steps", "rest_1ms_steps", "refusal",
-             "jaw_10hz_pressed"]
+    # the others run in this process (test_quick_case_keeps_every_invariant) and through
+    # the FMU in benchmarks/stress.py; three random schedules go through the FMU in
+    # test_randomized_campaign_through_the_fmu_a_few_seeds
+    names = ["all_muscles_step", "bang_bang_20hz", "pressed_released", "rollback_pressed",
+             "refusal", "jaw_10hz_pressed"]
     specs = [S.fmu_spec(QUICK[n], tmp_path / f"{n}.toml") for n in names]
     (tmp_path / "cases.json").write_text(json.dumps(specs))
     proc = subprocess.run([sys.executable, str(SCRIPTS / "stress_case.py"), str(fmu),
@@ -92,16 +93,9 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
 
 @pytest.mark.parametrize("scene,fidelity,steps", [
     ("oop_buc_contact", "", 20),
-    pytest.param("oop_buc_contact", "", 40, marks=pytest.mark.xfail(strict=True, reason=(
-        "coarse face, OOP and BUC the only muscles: the upper-lip faces around bricks 178 "
-        "and 209 warp, and lower-lip nodes 202 and 217 go behind their bilinear faces "
-        "from t = 0.165 s, by up to 0.126 mm at t = 0.19 s "
-        "(docs/dev-notes/contact-hard-cases.md)"))),
+    ("oop_buc_contact", "", 40),
     ("default", "", 20),
-    pytest.param("default", "balanced", 20, marks=pytest.mark.xfail(strict=True, reason=(
-        "balanced's soft lip penalty (0.3 N/mm^3): lip node 442 is 0.024 mm inside "
-        "the upper lip's triangles and 0.056 mm behind its warped bilinear face at "
-        "t = 0.06 s (0.049 mm at 0.5 N/mm^3, 0.041 mm at 1)")))])
+    ("default", "balanced", 20)])
 def test_lips_stay_out_of_each_other_under_oop_and_buc(scene, fidelity, steps):
     """OOP + BUC at 1 in 5 ms steps with lip and teeth contact (the stress case's scene,
     and the default scene with all ten muscles): after every step no lip node is inside

@@ -120,20 +120,20 @@ class _Lip:
         self.kv = np.zeros((12, Vn.shape[2]))
         self._f0 = np.zeros(Vn.shape[2])
         self.n = len(Vn)
-        self.xe = np.zeros((self.n + len(term.centres), 3))    # with the quads' centres
+        self.xe = np.zeros((self.n + len(term.virtual_nodes), 3))   # with the virtual vertices
 
     def nodes(self):
         # pair nodes and every node of the master surfaces (their edge and vertex
         # pseudo-normals involve the neighbouring triangles), the quads' corners
         real = [t[t < self.n] for t in (np.asarray(n.tris).ravel() for n in self.term.normals)]
         return np.concatenate([np.asarray(p["p"]["nodes"]).ravel() for p in self.passes]
-                              + real + [np.asarray(self.term.centres).ravel()])
+                              + real + [np.asarray(self.term.virtual_nodes).ravel()])
 
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
         total, sig = 0.0, 0
         self.xe[:self.n] = x
-        self.xe[self.n:] = x[t.centres].mean(axis=1)
+        self.xe[self.n:] = np.einsum("cb,cbi->ci", t.virtual_weights, x[t.virtual_nodes])
         x = self.xe
         for w in self.passes:
             p, nrm = w["p"], w["nrm"]

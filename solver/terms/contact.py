@@ -104,21 +104,27 @@ offset the face at rest would move under their contact forces. LipContact has no
 neither anatomy's lips push on each other at rest (tests/test_contact.py).
 
 LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
-and the reverse). Each quad of a lip surface is split into four triangles around its
-centre, a virtual vertex at the mean of its corners (centred_triangles): the triangles
-stay within about an eighth of the quad's warp of its bilinear face (the element's own
-boundary), where a split along one diagonal leaves up to half of it on one side. A pair's
+and the reverse). Each quad of a lip surface is cut into 2 x 2 sub-quads at its edge
+midpoints and centre, and each sub-quad into four triangles around its own centre: all
+virtual vertices, fixed combinations of the quad's corners on its bilinear face
+(centred_triangles). The triangles stay within a 32nd of the quad's warp of its bilinear
+face (the element's own boundary, where the Probe of solver/stability.py measures
+penetration); four triangles around the quad's centre alone stay within an eighth, a
+split along one diagonal within a half. A surface of triangles is used as it is. A pair's
 block holds the slave and the quad's four nodes; the kernel works on the triangle's
-vertices, mapped to those nodes linearly (pair_maps). The sparsity pattern is built
-once, so the candidate (slave node, master triangle) pairs are fixed at rest: master
-triangles within radius of the slave that face it (normals opposed: some face of the
-slave at that node has n . the triangle's normal < 0, so that a node on an edge of its
-lip, e.g. where the slit meets the inner face, also sees the other lip's inner face that
-it may wrap around; and the slave in front of the triangle's plane), which keeps the
-backs and the filled caps of closed lip surfaces out; at most max_pairs (48) nearest per
-slave: a patch of the other lip large enough that the slaves stay inside it. Nodes on
-both surfaces (the joined mouth corners) are no slaves, and a slave inside the other lip
-at rest by more than rest_tolerance is dropped. Each slave takes its nearest candidate;
+vertices, mapped to those nodes linearly (pair_maps). Candidate (slave node, master
+triangle) pairs: master triangles within radius of the slave that face it (normals
+opposed: some face of the slave at that node has n . the triangle's normal < 0, so that a
+node on an edge of its lip, e.g. where the slit meets the inner face, also sees the other
+lip's inner face that it may wrap around; and the slave in front of the triangle's plane,
+or behind it by at most `behind`), which keeps the backs and the filled caps of closed lip
+surfaces out; at most max_pairs (48) nearest per slave. They are picked at rest and again
+at every converged state (follow_state, at each commit), so that a lip sliding over the
+other keeps the patch under it; the System rebuilds its sparsity pattern when they change
+(blocks_generation), and a restored state gets back the pairs it had. Every node of a lip
+surface that is not on both (the joined mouth corners) is a slave, also one without
+candidates at rest (unless follow is off), and a slave inside the other lip at rest by more than rest_tolerance
+is dropped. Each slave takes its nearest candidate;
 penetrations deeper than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a
 node that came in elsewhere than through its candidates. An edge of a slave's candidate
 triangles whose other face is no candidate of that slave (the facing test drops the far
@@ -153,36 +159,99 @@ EDGE_FADE = 1.0            # mm: lip contact fades out over this distance beyond
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
-def centred_triangles(faces, first):
-    """Quads (f, 4) split into four triangles around their centre point, a virtual vertex
-    (ids first, first + 1, ...: the mean of the quad's four nodes); degenerate quads
-    (a repeated node) and (f, 3) faces stay triangles. Unlike a split along one diagonal,
-    the four triangles stay within half the warp of the quad's bilinear face on both
-    sides. Returns (tris (t, 3), centres (c, 4) the nodes of each virtual vertex, corners
-    (t, 4) the real nodes a triangle's vertices are made of, weights (t, 3, 4): vertex a
-    of triangle t = sum_b weights[t, a, b] x[corners[t, b]])."""
+def centred_triangles(faces, first, divisions=1):
+    """Lip faces as triangles over the real nodes and virtual vertices (ids first,
+    first + 1, ...: fixed linear combinations of a face's corners).
+
+    divisions 1: each quad (f, 4) is split into four triangles around its centre (the mean
+    of its corners), which stay within an eighth of the quad's warp (the distance between
+    its diagonals' midpoints) of its bilinear face, where a split along one diagonal
+    leaves up to half of it on one side. divisions 2: each quad is first cut into 2 x 2
+    sub-quads at its edge midpoints (shared with the neighbouring faces) and its centre,
+    points of its bilinear face, and each sub-quad is split around its own centre: within
+    a 32nd of the warp, with four times the triangles. A degenerate quad (a repeated node)
+    or an (f, 3) face is a triangle; at divisions 2 it is cut at its edge midpoints into
+    four (on a surface of triangles only, divisions 2 is divisions 1: its faces are flat).
+
+    Returns (tris (t, 3), virtual_nodes (c, 4), virtual_weights (c, 4): virtual vertex
+    first + v at sum_b virtual_weights[v, b] x[virtual_nodes[v, b]], corners (t, 4) the
+    real nodes a triangle's vertices are made of, weights (t, 3, 4): vertex a of triangle
+    t = sum_b weights[t, a, b] x[corners[t, b]])."""
+    if divisions not in (1, 2):
+        raise ParameterError(f"lip contact divisions = {divisions!r} must be 1 or 2")
     faces = np.asarray(faces, dtype=np.int64)
     if faces.shape[1] == 3:
         faces = np.column_stack([faces, faces[:, 2]])
-    distinct = ((faces[:, [0, 1, 2, 3, 0, 1]] != faces[:, [1, 2, 3, 0, 2, 3]]).all(axis=1))
-    quads, rest = faces[distinct], faces[~distinct]
-    tris, corners, weights = [], [], []
-    z = first + np.arange(len(quads))
-    eye = np.eye(4)
-    for j in range(4):
-        tris.append(np.column_stack([quads[:, j], quads[:, (j + 1) % 4], z]))
-        corners.append(quads)
-        w = np.stack([eye[j], eye[(j + 1) % 4], np.full(4, 0.25)])
-        weights.append(np.broadcast_to(w, (len(quads), 3, 4)))
-    for f in rest:                              # a triangle (a quad with a node repeated)
+    if not ((faces[:, [0, 1, 2, 3, 0, 1]] != faces[:, [1, 2, 3, 0, 2, 3]]).all(axis=1)).any():
+        divisions = 1                           # triangles only: flat, nothing to refine
+    vnodes, vweights, tris, corners, weights = [], [], [], [], []
+    edge_mid = {}
+
+    def virtual(nodes, w):
+        vnodes.append(nodes)
+        vweights.append(w)
+        return first + len(vnodes) - 1
+
+    def midpoint(a, b):
+        key = (min(a, b), max(a, b))
+        if key not in edge_mid:
+            edge_mid[key] = virtual([a, b, a, b], [0.5, 0.5, 0.0, 0.0])
+        return edge_mid[key]
+
+    for f in faces:
+        f = [int(v) for v in f]
         u = [v for i, v in enumerate(f) if v not in f[:i]]
-        if len(u) == 3:
-            tris.append(np.array([u]))
-            corners.append(np.array([u + [u[2]]]))
-            weights.append(np.array([[eye[0], eye[1], eye[2]]]))
-    return (np.ascontiguousarray(np.vstack(tris)), quads,
-            np.ascontiguousarray(np.vstack(corners)),
-            np.ascontiguousarray(np.concatenate(weights)))
+        if len(u) == 4:
+            n = divisions
+            g = np.linspace(-1.0, 1.0, n + 1)
+
+            def bilinear(si, ti):
+                return 0.25 * np.array([(1 - si) * (1 - ti), (1 + si) * (1 - ti),
+                                        (1 + si) * (1 + ti), (1 - si) * (1 + ti)])
+
+            grid = {}                       # (i, j) -> (vertex id, weights over f)
+            for i in range(n + 1):
+                for j in range(n + 1):
+                    w = bilinear(g[i], g[j])
+                    if (i in (0, n)) and (j in (0, n)):
+                        vid = f[int(np.argmax(w))]
+                    elif i in (0, n) or j in (0, n):
+                        ends = np.flatnonzero(w > 1e-12)
+                        vid = midpoint(f[ends[0]], f[ends[1]])
+                    else:
+                        vid = virtual(f, w)
+                    grid[i, j] = (vid, w)
+            for i in range(n):
+                for j in range(n):
+                    ring = [grid[i, j], grid[i + 1, j], grid[i + 1, j + 1], grid[i, j + 1]]
+                    wc = bilinear(0.5 * (g[i] + g[i + 1]), 0.5 * (g[j] + g[j + 1]))
+                    z = virtual(f, wc)
+                    for k in range(4):
+                        (va, wa), (vb, wb) = ring[k], ring[(k + 1) % 4]
+                        tris.append([va, vb, z])
+                        corners.append(f)
+                        weights.append([wa, wb, wc])
+        elif len(u) == 3:
+            eye = np.eye(4)
+            if divisions == 1:
+                tris.append(u)
+                corners.append(u + [u[2]])
+                weights.append([eye[0], eye[1], eye[2]])
+                continue
+            m = [midpoint(u[k], u[(k + 1) % 3]) for k in range(3)]
+            wm = [0.5 * (eye[k] + eye[(k + 1) % 3]) for k in range(3)]
+            for k in range(3):                  # the corner triangles, then the middle one
+                tris.append([u[k], m[k], m[k - 1]])
+                corners.append(u + [u[2]])
+                weights.append([eye[k], wm[k], wm[k - 1]])
+            tris.append(m)
+            corners.append(u + [u[2]])
+            weights.append(wm)
+    vn = np.array(vnodes, dtype=np.int64).reshape(-1, 4)
+    vw = np.array(vweights, dtype=np.float64).reshape(-1, 4)
+    return (np.ascontiguousarray(np.array(tris, dtype=np.int64).reshape(-1, 3)), vn, vw,
+            np.ascontiguousarray(np.array(corners, dtype=np.int64).reshape(-1, 4)),
+            np.ascontiguousarray(np.array(weights, dtype=np.float64).reshape(-1, 3, 4)))
 
 
 def tributary_areas(x, faces, n):
@@ -574,11 +643,13 @@ class LipContact(_Report, Term):
                    follow_state) they are picked again as at rest, at the current positions
     behind         mm: a candidate triangle may have the slave this far behind its plane
                    (default depth: a penetrating slave keeps the triangle it is in)
+    divisions      1 or 2: the lip faces' triangulation (centred_triangles; 2: the
+                   quads' 2 x 2 subdivision, a 32nd of their warp from the bilinear faces)
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
                  radius=6.0, max_pairs=48, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
-                 mirror_nodes=None, fade=EDGE_FADE, follow=True, behind=None):
+                 mirror_nodes=None, fade=EDGE_FADE, follow=True, behind=None, divisions=2):
         _check(penalty, smoothing)
         if not fade > 0:
             raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
@@ -591,16 +662,19 @@ class LipContact(_Report, Term):
         if mirror_nodes is not None:
             mirror = np.zeros(n, dtype=bool)
             mirror[np.asarray(mirror_nodes, dtype=np.int64)] = True
-        surf, centres, corners, weights = [], [], [], []
+        surf, vnodes, vweights, corners, weights = [], [], [], [], []
         first = n
         for faces in (upper_faces, lower_faces):
-            t, c, co, w = centred_triangles(faces, first)
+            t, vn, vw, co, w = centred_triangles(faces, first, divisions)
             surf.append(t)
-            centres.append(c)
+            vnodes.append(vn)
+            vweights.append(vw)
             corners.append(co)
             weights.append(w)
-            first += len(c)
-        self.centres = np.vstack(centres)                     # (c, 4) virtual vertices
+            first += len(vn)
+        self.divisions = int(divisions)
+        self.virtual_nodes = np.vstack(vnodes)                # (c, 4) virtual vertices'
+        self.virtual_weights = np.vstack(vweights)            # (c, 4) combinations
         ext = None if mirror is None else np.concatenate([mirror, np.zeros(first - n, bool)])
         x0 = self.positions(np.zeros((n, 3)))
         self.normals = [_Normals(t, first, ext).update(x0) for t in surf]
@@ -613,7 +687,9 @@ class LipContact(_Report, Term):
             slaves = np.setdiff1d(real[s], real[m])
             ptr, pair_tri, pair_free = self._pairs(x0, slaves, s, m)
             gap = self._rest_gaps(x0, slaves, m, ptr, pair_tri)
-            keep = (np.diff(ptr) > 0) & ~(gap < -rest_tolerance)
+            # a slave without candidates at rest gets them where it comes near the other
+            # lip when the pairs follow the state; without follow it never would
+            keep = ((np.diff(ptr) > 0) | follow) & ~(gap < -rest_tolerance)
             dropped.append(slaves[(gap < -rest_tolerance)])
             slaves = slaves[keep]
             q = {"slaves": slaves, "slave_surface": s, "master": m,
@@ -635,9 +711,13 @@ class LipContact(_Report, Term):
 
     def positions(self, u):
         """(n + c, 3) the nodes' positions at displacements u (n, 3), then the virtual
-        centre vertices of the lip surfaces' quads (centred_triangles)."""
-        x = self.mesh.nodes + u
-        return np.vstack([x, x[self.centres].mean(axis=1)])
+        vertices of the lip surfaces (centred_triangles)."""
+        return self.extend(self.mesh.nodes + u)
+
+    def extend(self, x):
+        """(n + c, 3): node positions x (n, 3), then the virtual vertices'."""
+        return np.vstack([x, np.einsum("cb,cbi->ci", self.virtual_weights,
+                                       x[self.virtual_nodes])])
 
     def _set_pairs(self, q, ptr, pair_tri, pair_free):
         """Put the candidate pairs (ptr, pair triangles, pair_free) in the pass q, with the
