@@ -172,8 +172,8 @@ def main(argv=None):
                 say(f"{anatomy:10s}{mode:11s}{res['wall_s']:10.2f}"
                     f"{res['wall_s'] / base['wall_s']:8.2f}{diff:15.2e}{res['exit']:6d}")
     if args.out:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                                capture_output=True, text=True).stdout.strip()
+        from solver.provenance import commit as git_commit
+        commit = git_commit()
         command = "python benchmarks/fmu_vs_inprocess.py " + " ".join(argv or sys.argv[1:])
         Path(args.out).write_text(
             "<!-- written by benchmarks/fmu_vs_inprocess.py; do not edit -->\n"

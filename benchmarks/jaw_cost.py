@@ -20,7 +20,6 @@ iterations while the lips move).
 import argparse
 import datetime
 import math
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.simulation import Simulation, resolve_scene
+from solver.provenance import commit as git_commit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -96,8 +96,7 @@ def main(argv=None):
     table = "\n".join(lines)
     print(table)
     if args.out:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                                capture_output=True, text=True).stdout.strip()
+        commit = git_commit()
         command = "python benchmarks/jaw_cost.py" + "".join(f" {a}" for a in
                                                             (argv or sys.argv[1:]))
         Path(args.out).write_text(

@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from solver import stability as S  # noqa: E402
 from solver.scene import parse_scene  # noqa: E402
+from solver.provenance import commit  # noqa: E402
 from table import report  # noqa: E402
 
 KEYS = ["case", "pass", "contact", "steps", "refused", "substeps", "newton", "cutbacks",
@@ -143,22 +144,13 @@ def run_fmu(selected, runs, out, notes, fmu=None):
     return rows, problems
 
 
-def _commit():
-    def git(*a):
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True,
-                              text=True).stdout.strip()
-    head = git("rev-parse", "--short", "HEAD") or "unknown"
-    return head + (" with uncommitted changes" if git("status", "--porcelain",
-                                                     "--untracked-files=no") else "")
-
-
 def markdown(rows, command, notes, problems, wall):
     def cell(v):
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3g}"
         return str(v)
     lines = ["# Stability: the hard cases", "",
-             f"Made by `{command}` at commit {_commit()} on "
+             f"Made by `{command}` at commit {commit()} on "
              f"{datetime.date.today().isoformat()}, {platform.machine()} "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "

@@ -12,15 +12,15 @@ robust: the transient scenes carry it), so an aperture of 0 may mean lips crossi
 
 import argparse
 import os
-import subprocess
 import time
 from pathlib import Path
 
 from solver.anatomy.base import MUSCLE_NAMES
 from solver.anatomy.load import load_anatomy
 from solver.plot import plot_anatomy
-from solver.scene import parse_scene
+from solver.scene import parse_scene, Scene
 from solver.simulation import Simulation
+from solver.provenance import commit
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -28,17 +28,6 @@ REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
 CASES = {"RIS": {"RIS": 1.0}, "BUC": {"BUC": 1.0}, "OOP": {"OOP": 1.0},
          "OOP + BUC": {"OOP": 1.0, "BUC": 1.0}}
 KEYS = ("lip_aperture", "lip_protrusion", "lip_width")
-
-
-def commit():
-    """The checkout's short commit, with " with uncommitted changes" where the tracked files
-    differ from it ("unknown" outside a git checkout)."""
-    def git(*a):
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True,
-                              text=True).stdout.strip()
-    head = git("rev-parse", "--short", "HEAD") or "unknown"
-    return head + (" with uncommitted changes" if git("status", "--porcelain",
-                                                     "--untracked-files=no") else "")
 
 
 def solve(anatomy, activations, contact):
@@ -69,7 +58,8 @@ def main(argv=None):
     lines = ["# What each muscle does", "",
              f"Made by `python examples/muscle_atlas.py --level {args.level}"
              f"{' --no-contact' if not contact else ''}` at commit {commit()}: static "
-             "equilibrium, half face, "
+             f"equilibrium, half face, muscle calibration `{Scene().calibration}` "
+             "(solver/muscles.py), "
              f"stiffening on (the paper's whole-brick rule), lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
              "(an aperture of 0 may mean crossing lips). Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "
@@ -100,17 +90,14 @@ def main(argv=None):
     lines += ["## Against the paper", "",
               "RIS widens the mouth and pulls the corners back; OOP protrudes the lips and "
               "narrows the aperture; OOP + BUC protrudes less than OOP alone and closes the "
-              "lips further, as in the paper. BUC alone does not: at its peak force "
-              "(100 kPa x pi (3 mm)^2 = 2.83 N per fibre) it pulls the lips back by about as "
-              "much as OOP pushes them forward, where the paper reports little lip motion "
-              "and a cheek pressed on the teeth. In the published fibres BUC runs straight "
-              "from beside the mouth corners to the back of the cheek, so its tension "
-              "retracts the corners and does not press the cheek inwards (a straight cable "
-              "has no inward pull); the paper's BUC cables had their own real-constant set "
-              "(its cross-section), whose value the data does not give. Lowering BUC's "
-              "force scale (scene key muscles.force_scale) shrinks the retraction; "
-              "tests/test_muscle_actions.py keeps the paper's check as an expected "
-              "failure."]
+              "lips further, as in the paper. BUC presses the cheek against the teeth, as the "
+              "paper observes (its Figure 9; tests/test_muscle_actions.py checks that the "
+              "teeth's contact force on the cheek rises with BUC's activation), but it also "
+              "pulls the lips back, compare its rows and pictures with OOP's above, where "
+              "the paper reports little lip motion. The published BUC fibres run straight "
+              "from beside the mouth corners to the back of the cheek, so their tension "
+              "retracts the corners; the paper's BUC cables had a real-constant set of "
+              "their own (a cross-section), whose value the published data does not give."]
     (out / "muscles.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'muscles.md'} in {time.perf_counter() - t0:.0f} s")
 

@@ -9,7 +9,8 @@ alpha dT = -a s F_max / (A E), so that T = s F_max at a = 1 and eps = 0 (s: the 
 per-muscle force scale, default 1). The force falls linearly as the cable shortens and
 vanishes at eps = -a s F_max / (A E) = -a s eps_c.
 
-Constants (defaults; every one is a parameter of MuscleProperties):
+Constants of the `physiological` calibration (MuscleProperties' defaults; the `paper`
+calibration replaces sigma_max, eps_c and the stiffening factor: calibrated below):
 * Peak force per fibre F_max = sigma_max * pi r^2: the maximum stress of skeletal muscle
   times the muscle's cross-section, a circle of the muscle's radius r (the same r that
   bounds its stiffened neighbourhood, below).
@@ -35,13 +36,16 @@ by the fraction of its volume inside the radius (stiffening_rule "volume"; "inte
 the paper's whole-brick rule; solver/terms/stiffening.py says why).
 """
 
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from .anatomy.base import MUSCLE_NAMES
 from .errors import ParameterError
 
 SIGMA_MAX_MPA = 0.1
+PAPER_FILE = Path(__file__).parent / "data" / "paper_calibration.json"
 EPS_CONTRACTION = 0.5
 E_TISSUE_KPA = 15.0          # 6 c10, the paper's E
 E_CONTRACTED_KPA = 110.0
@@ -58,15 +62,51 @@ def peak_force(radius_mm, sigma_max=SIGMA_MAX_MPA):
 F_MAX_N = {m: peak_force(r) for m, r in STIFFENING_RADIUS_MM.items()}
 
 
+def paper_calibration():
+    """The identification record of the `paper` calibration (a dict: sigma_max_mpa, the
+    objective, the rows fitted, provenance), as written by
+    `python benchmarks/calibrate_paper.py`."""
+    try:
+        rec = json.loads(PAPER_FILE.read_text())
+        {k: float(rec["constants"][k]) for k in ("sigma_max", "eps_contraction",
+                                                   "stiffening_max")}
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ParameterError(f"{PAPER_FILE}: not a paper calibration record ({err!r}); "
+                             "`python benchmarks/calibrate_paper.py` writes it") from None
+    return rec
+
+
+def calibrated(name):
+    """The muscle constants of the named calibration, dict(sigma_max (MPa),
+    eps_contraction, stiffening_max):
+
+    physiological  sigma_max 0.1 MPa, the maximum stress of skeletal muscle, eps_c 0.5 and
+                   stiffening up to E_c / E_0 = 7.33 (above)
+    paper          identified so that the reference face reproduces the paper's Table 4
+                   (OOP's largest compressive strain over a 0.1 s activation ramp):
+                   solver/data/paper_calibration.json, docs/table4.md
+    """
+    if name == "physiological":
+        return {"sigma_max": SIGMA_MAX_MPA, "eps_contraction": EPS_CONTRACTION,
+                "stiffening_max": E_CONTRACTED_KPA / E_TISSUE_KPA}
+    if name == "paper":
+        return {k: float(v) for k, v in paper_calibration()["constants"].items()}
+    raise ParameterError(f"muscle calibration {name!r} is not one of {list(CALIBRATIONS)}")
+
+
+CALIBRATIONS = ("physiological", "paper")
+
+
 def _per_muscle(value):
     return field(default_factory=lambda: {m: value for m in MUSCLE_NAMES})
 
 
 @dataclass
 class MuscleProperties:
-    """Per-muscle constants (dicts keyed by MUSCLE_NAMES)."""
+    """Per-muscle constants (dicts keyed by MUSCLE_NAMES). f_max defaults to
+    sigma_max pi r^2 over the stiffening radii (one stress for all ten muscles)."""
 
-    f_max: dict = field(default_factory=lambda: dict(F_MAX_N))   # N per fibre at a = 1
+    f_max: dict = None                                  # N per fibre at a = 1
     force_scale: dict = _per_muscle(1.0)                # user scale of the active force
     sigma_max: float = SIGMA_MAX_MPA                    # MPa
     eps_contraction: float = EPS_CONTRACTION
@@ -75,15 +115,15 @@ class MuscleProperties:
     stiffening_rule: str = "volume"                     # or "intersect" (solver.terms.stiffening)
 
     def __post_init__(self):
-        for name in ("f_max", "force_scale", "stiffening_radius"):
-            d = getattr(self, name)
-            unknown = set(d) - set(MUSCLE_NAMES)
-            if unknown:
-                raise ParameterError(f"{name}: unknown muscle(s) {sorted(unknown)}; "
-                                     f"known: {list(MUSCLE_NAMES)}")
-            for m, v in d.items():
-                if not (isinstance(v, (int, float)) and v >= 0 and v == v and v != float("inf")):
-                    raise ParameterError(f"{name}[{m}] = {v!r} must be a finite number >= 0")
+        if not (isinstance(self.sigma_max, (int, float)) and 0 < self.sigma_max < math.inf):
+            raise ParameterError(f"sigma_max = {self.sigma_max!r} must be a finite number > 0 "
+                                 "(MPa)")
+        self._check_per_muscle("stiffening_radius")
+        if self.f_max is None:
+            self.f_max = {m: peak_force(r, self.sigma_max)
+                          for m, r in self.stiffening_radius.items()}
+        self._check_per_muscle("f_max")
+        self._check_per_muscle("force_scale")
         for name in ("sigma_max", "eps_contraction"):
             v = getattr(self, name)
             if not v > 0:
@@ -93,6 +133,16 @@ class MuscleProperties:
                                  "['volume', 'intersect']")
         if not self.stiffening_max >= 1.0:
             raise ParameterError(f"stiffening_max = {self.stiffening_max!r} must be >= 1")
+
+    def _check_per_muscle(self, name):
+        d = getattr(self, name)
+        unknown = set(d) - set(MUSCLE_NAMES)
+        if unknown:
+            raise ParameterError(f"{name}: unknown muscle(s) {sorted(unknown)}; "
+                                 f"known: {list(MUSCLE_NAMES)}")
+        for m, v in d.items():
+            if not (isinstance(v, (int, float)) and v >= 0 and v == v and v != float("inf")):
+                raise ParameterError(f"{name}[{m}] = {v!r} must be a finite number >= 0")
 
     def area(self, muscle):
         """Cable cross-section A (mm^2)."""

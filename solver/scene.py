@@ -25,6 +25,12 @@ recorded outputs and, for standalone runs, activation schedules.
     [muscles]
     driven = ["OOP", "OOM"]         # default: all ten
     force_scale = { OOP = 1.0 }     # optional, per muscle
+    calibration = "paper"           # | "physiological": the muscle constants
+                                    # (solver.muscles.calibrated); the three keys
+                                    # below, where given, replace the calibration's:
+    sigma_max = 0.24                # optional, MPa: the peak muscle stress
+    contraction_strain = 1.0        # optional: the cable's slack strain at a = 1 (eps_c)
+    stiffening_max = 5.3            # optional: the stiffening factor at a = 1
 
     [effects]
     inertia = true                  # transient only
@@ -93,6 +99,7 @@ from .errors import FaceFMUError
 from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
 from .jaw import JAW_RANGES
 from .linsolve import SOLVERS
+from .muscles import CALIBRATIONS, calibrated
 from .terms.contact import PENALTY
 
 ANALYSES = ("static", "transient")
@@ -142,6 +149,10 @@ class Scene:
     rows: int = None
     driven: tuple = MUSCLE_NAMES
     force_scale: dict = field(default_factory=dict)
+    calibration: str = "paper"
+    sigma_max: float = None
+    contraction_strain: float = None
+    stiffening_max: float = None
     inertia: bool = True
     damping: bool = True
     stiffening: bool = True
@@ -204,6 +215,18 @@ class Scene:
     def jaw(self, t):
         """dict jaw input -> value at time t from the jaw schedules ({} without any)."""
         return {s.muscle: s.value(t) for s in self.schedules if s.muscle in JAW_RANGES}
+
+    def muscle_constants(self):
+        """dict(sigma_max (MPa), eps_contraction, stiffening_max) of the muscles: the named
+        calibration's (solver.muscles.calibrated), with sigma_max, contraction_strain and
+        stiffening_max where the scene gives them."""
+        out = calibrated(self.calibration)
+        for key, field_name in (("sigma_max", "sigma_max"),
+                                ("eps_contraction", "contraction_strain"),
+                                ("stiffening_max", "stiffening_max")):
+            if getattr(self, field_name) is not None:
+                out[key] = float(getattr(self, field_name))
+        return out
 
     def with_overrides(self, **kw):
         return replace(self, **kw)
@@ -279,7 +302,11 @@ SECTIONS = {
               "fidelity": ("fidelity", _choice(FIDELITIES + tuple(REDUCED)))},
     "anatomy": {"source": ("anatomy", _string), "level": ("level", _choice(LEVELS)),
                 "half": ("half", _bool), "rows": ("rows", _integer(1, 4))},
-    "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales)},
+    "muscles": {"driven": ("driven", _muscles), "force_scale": ("force_scale", _scales),
+                "calibration": ("calibration", _choice(CALIBRATIONS)),
+                "sigma_max": ("sigma_max", _number(0.0, 10.0, strict_lo=True)),
+                "contraction_strain": ("contraction_strain", _number(0.0, 10.0, strict_lo=True)),
+                "stiffening_max": ("stiffening_max", _number(1.0, 100.0))},
     "effects": {"inertia": ("inertia", _bool), "damping": ("damping", _bool),
                 "stiffening": ("stiffening", _bool), "lip_contact": ("lip_contact", _bool),
                 "stiffening_rule": ("stiffening_rule", _choice(("volume", "intersect"))),

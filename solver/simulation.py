@@ -77,7 +77,7 @@ class Simulation:
         self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half, sc.rows)
         props = MuscleProperties(force_scale={m: sc.force_scale.get(m, 1.0)
                                               for m in MUSCLE_NAMES},
-                                 stiffening_rule=sc.stiffening_rule)
+                                 stiffening_rule=sc.stiffening_rule, **sc.muscle_constants())
         self.face = FaceModel(self.anatomy, MooneyRivlin(), muscles=sc.driven,
                               stiffening=sc.stiffening, properties=props,
                               formulation=sc.formulation, linear_solver=sc.linear_solver)

@@ -43,6 +43,7 @@ Optional (left out of the anatomy when absent):
     OOM_active_elements.elem   newface.elem; lines whose element id is not a brick of
                                newface.elem (the 4-node surface elements in the reference
                                OOM file) are ignored, a brick whose nodes differ is an error.
+    OOP_elements.txt           element ids of the paper's OOP region, one a line
 
 What the anatomy holds
 ----------------------
@@ -51,7 +52,8 @@ node_sets: 'fixed_skull', 'fixed_mandible', 'fixed' (their union), 'midsagittal'
     (|x| < 0.1 mm: the reference face's mid-plane nodes lie within 0.017 mm of x = 0,
     the next ones at 0.27 mm).
 element_sets: 'mat_<k>' for each MAT number, 'OOP_active', 'OOM_active' where their files
-    exist. The reference face has MAT 1 everywhere (its wedges are TYPE 2): its three
+    exist, 'OOP_region' from OOP_elements.txt (one element id a line: the OOP region over
+    which the paper reports Table 4's strains). The reference face has MAT 1 everywhere (its wedges are TYPE 2): its three
     tissue layers share one material and are not marked. No 'layer_*' set is made: stacking
     bricks through their I-L / M-P faces gives columns of three for 91 % of the bricks only
     (1932 columns of 3, 114 of 2, 318 single bricks), not a reliable layering.
@@ -115,6 +117,7 @@ MACRO_FILE = "face_muscles_topology.mac"
 LIP_FILES = {"upper_lip": "upperlip_filled.smesh", "lower_lip": "lowerlip_filled.smesh"}
 TEETH_FILES = {"upper_teeth": "maxilla_lipcontact.obj", "lower_teeth": "mandible_lipcontact.obj"}
 ACTIVE_FILES = {"OOP_active": "OOP_active_elements.elem", "OOM_active": "OOM_active_elements.elem"}
+REGION_FILE = "OOP_elements.txt"     # the paper's OOP region (Table 4's strains)
 
 RIGHT_ID_OFFSET = 20000     # right cable node id = left id + 20000
 MIDLINE_TOL = 0.1           # mm, |x| below which a node is mid-sagittal
@@ -273,6 +276,8 @@ def _read_mesh(folder):
     for name, file in ACTIVE_FILES.items():
         if (folder / file).is_file():
             element_sets[name] = _active_set(folder / file, fields)
+    if (folder / REGION_FILE).is_file():
+        element_sets["OOP_region"] = _region_set(folder / REGION_FILE, fields[:, 13])
     return Mesh(nodes, bricks, node_sets, element_sets, node_ids, fields[:, 13])
 
 
@@ -293,6 +298,25 @@ def _fixed_set(path, node_ids, nodes):
         raise MeshFileError(path, int(numbers[i]), f"node {ids[i]} is {off[i]:.3g} mm away "
                             f"from its position in {NODE_FILE}")
     return found
+
+
+def _region_set(path, element_ids):
+    """Brick indices (k,) of an element-id list (one id a line); an id that is no element
+    of the mesh is an error naming its line."""
+    numbers, ids = [], []
+    for number, line in enumerate(path.read_text(encoding="latin-1").splitlines(), 1):
+        if line.strip():
+            try:
+                ids.append(int(line.split()[0]))
+            except ValueError:
+                raise MeshFileError(path, number, f"{line.strip()!r} is not an element id") \
+                    from None
+            numbers.append(number)
+    pos = _lookup(element_ids, np.array(ids, dtype=np.int64))
+    if (pos < 0).any():
+        i = int(np.argmax(pos < 0))
+        raise MeshFileError(path, numbers[i], f"element {ids[i]} is not in {ELEM_FILE}")
+    return pos
 
 
 def _active_set(path, mesh_fields):
