@@ -99,7 +99,7 @@ def test_buc_presses_the_cheek_against_the_teeth(solved):
     f_half, _ = _cheek_on_teeth(res["BUC/2"][0], cheek)
     f_full, along = _cheek_on_teeth(res["BUC"][0], cheek)
     # at rest the teeth push on nothing (the rest offsets: tests/test_contact.py)
-    assert f_half > 0.01 and f_full > 1.2 * f_half, (f_rest, f_half, f_full)
+    assert f_half > 0.01 and f_full > 1.2 * f_half, (f_half, f_full)
     assert len(along) >= 3 and np.mean(along) < 0, along
 
 
@@ -131,3 +131,42 @@ def test_pressed_lips_close_without_interpenetrating():
     assert sim.outputs()["lip_aperture"] < 0.1
     assert max(worst.values()) < 0.05, worst
     assert Probe(anatomy).lip_overlap(sim.face.u) < 0.05
+
+
+@pytest.mark.slow
+def test_figures_8_to_10_under_the_paper_calibration_in_transient_analysis():
+    """The paper's Figures 8 to 10 under the `paper` calibration, on the reference face,
+    as the paper ran them: transient, each activation ramped to 1 over 0.1 s and held to
+    0.2 s, lip and teeth contact (static equilibria at these forces do not converge:
+    OOP's alone stalls at 33 % of the load without contact, a limit point of the
+    squeezed lips). RIS widens the mouth; OOP protrudes the lips and narrows the aperture;
+    OOP + BUC protrudes less than OOP alone and closes the lips; BUC presses the cheek on
+    the teeth, harder at a = 1 than at 0.5."""
+    if not (REFERENCE / "newface.node").is_file():
+        pytest.skip(f"reference face not found at {REFERENCE}")
+    anatomy = load_anatomy(REFERENCE, half=True)
+    res = {}
+    for name, act in CASES.items():
+        scene = parse_scene({"scene": {"analysis": "transient"},
+                             "muscles": {"driven": sorted(act), "calibration": "paper"},
+                             "effects": {"teeth_contact": True, "lip_contact": True,
+                                         "stiffening_rule": "intersect"}})
+        sim = Simulation(scene, loaded_anatomy=anatomy)
+        rest = sim.outputs()
+        for k in range(1, 21):
+            sim.set_activations({m: a * min(1.0, k / 10) for m, a in act.items()})
+            stats = sim.step(0.01 * k)
+            assert stats.converged, (name, stats.reason)
+        res[name] = (sim, rest, sim.outputs())
+    sim, rest, out = res["RIS"]
+    assert out["lip_width"] > rest["lip_width"] + 0.1
+    _, rest, oop = res["OOP"]
+    assert oop["lip_protrusion"] > 0.3
+    assert oop["lip_aperture"] < rest["lip_aperture"] - 0.1 or oop["lip_aperture"] == 0.0
+    both = res["OOP+BUC"][2]
+    assert both["lip_protrusion"] < oop["lip_protrusion"] - 0.2
+    assert both["lip_aperture"] <= min(oop["lip_aperture"] / 2, 0.5)
+    cheek = np.unique(anatomy.mesh.bricks[res["BUC"][0].face.regions["BUC"]])
+    f_half, _ = _cheek_on_teeth(res["BUC/2"][0], cheek)
+    f_full, _ = _cheek_on_teeth(res["BUC"][0], cheek)
+    assert f_half > 0.01 and f_full > 1.2 * f_half, (f_half, f_full)
