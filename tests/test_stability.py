@@ -289,14 +289,9 @@ def test_random_activation_sequences(sim, probe, sequence, step):
 # ------------------------------------------------------------------- full versions
 
 KNOWN = {
-    # a lower-lip node enters an upper-lip brick from the teeth side (0.0713 mm, node 216
-    # in brick 209): the lip contact's closest-point gap has the wrong sign at the upper
-    # lip's corner there
-    "oop_buc_contact": "node 216 enters brick 209 from the teeth side",
-    # with lip and teeth contact, Newton stops at a jump of the contact residual and every
-    # cutback fails: random_0 at t = 0.105 s; random_2 in its halved run at t = 0.066 s
-    "random_0": "stuck at a jump of the contact residual (t = 0.105 s)",
-    "random_2": "stuck at a jump of the contact residual in the halved run (t = 0.066 s)",
+    # the run with every substep halved ends 1.74 mm away in a lip output (limit 0.138 mm;
+    # python benchmarks/stress.py --cases switching_0); why is not known yet
+    "switching_0": "halving every substep changes the lip outputs by 1.74 mm",
 }
 
 
