@@ -137,9 +137,8 @@ def test_pressed_lips_close_without_interpenetrating():
 def test_figures_8_to_10_under_the_paper_calibration_in_transient_analysis():
     """The paper's Figures 8 to 10 under the `paper` calibration, on the reference face,
     as the paper ran them: transient, each activation ramped to 1 over 0.1 s and held to
-    0.2 s, lip and teeth contact (static equilibria at these forces do not converge:
-    OOP's alone stalls at 33 % of the load without contact, a limit point of the
-    squeezed lips). RIS widens the mouth; OOP protrudes the lips and narrows the aperture;
+    0.2 s, lip and teeth contact (static equilibria of OOP, BUC and OOP + BUC at these
+    forces do not converge). RIS widens the mouth; OOP protrudes the lips and narrows the aperture;
     OOP + BUC protrudes less than OOP alone and closes the lips; BUC presses the cheek on
     the teeth, harder at a = 1 than at 0.5."""
     if not (REFERENCE / "newface.node").is_file():
