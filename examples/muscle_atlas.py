@@ -1,13 +1,22 @@
 """What each muscle does: lip aperture, protrusion and width for every single muscle at
-a = 0.5 and 1 on both anatomies, and pictures of the paper's cases (its Figures 8 to 10).
+a = 0.5 and 1 on both anatomies, the speech synergies' range beside published speech lip
+targets, and pictures of the paper's cases (its Figures 8 to 10).
 
     python examples/muscle_atlas.py [--out docs] [--level paper] [--no-contact]
 
-Static equilibrium, half face (symmetric activations), activation stiffening on (the
-paper's whole-brick rule, effects.stiffening_rule = "intersect", as in its scenes), lip/teeth
-contact on (unless --no-contact); no lip/lip contact (static Newton with pressed lips is not
-robust: the transient scenes carry it), so an aperture of 0 may mean lips crossing. The reference face is used where
+Static equilibrium, half face (symmetric activations), the default muscle calibration,
+activation stiffening on (the paper's whole-brick rule, effects.stiffening_rule =
+"intersect", as in its scenes), lip/lip and lip/teeth contact on (off with --no-contact).
+Where load-stepped Newton stops at a limit point (a folding lip) the damped relaxation
+finds the equilibrium (solver.transient.relax). The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
+
+Speech range: the four synergies of the motor-control example
+(examples/motor_control/lipmc_inverse.SYNERGIES) at full weight, the open vowel's intent
+with the jaw open, and the range over every state of the page, beside lip targets of
+VocalTractLab's JD3 speaker (Birkholz; model parameters, not measurements): protrusion
+about 10 mm for /u/, 7 mm for /o/, under 1 mm for /a/ and /i/; aperture about 3.4 mm for
+/u/, 2.6 mm for /o/, 9.9 mm for /a/, 9.3 mm for /i/; 0 mm for bilabial stops.
 """
 
 import argparse
@@ -27,16 +36,27 @@ REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
                             ROOT / ".." / "shared" / "data" / "reference-face"))
 CASES = {"RIS": {"RIS": 1.0}, "BUC": {"BUC": 1.0}, "OOP": {"OOP": 1.0},
          "OOP + BUC": {"OOP": 1.0, "BUC": 1.0}}
+# the motor-control example's synergies (examples/motor_control/lipmc_inverse.py), and its
+# open vowel's intent with the jaw: (activations, jaw opening deg)
+SPEECH = {"open (LLSAN + DLI)": ({"LLSAN": 1.0, "DLI": 1.0}, 0.0),
+          "round (OOP)": ({"OOP": 1.0}, 0.0),
+          "spread (RIS + ZYG)": ({"RIS": 1.0, "ZYG": 1.0}, 0.0),
+          "close (OOM + MENT)": ({"OOM": 1.0, "MENT": 1.0}, 0.0),
+          "open 0.5, jaw 8 deg (/a/)": ({"LLSAN": 0.5, "DLI": 0.5}, 8.0)}
+PUBLISHED = ("| VocalTractLab JD3 (model targets) | 0 (stops) to 9.9 (/a/) | "
+             "under 1 (/a/, /i/) to 10 (/u/) | - |")
 KEYS = ("lip_aperture", "lip_protrusion", "lip_width")
 
 
-def solve(anatomy, activations, contact):
+def solve(anatomy, activations, contact, jaw=0.0):
     scene = parse_scene({"scene": {"analysis": "static"},
                          "muscles": {"driven": sorted(activations)},
-                         "effects": {"teeth_contact": contact, "lip_contact": False,
+                         "effects": {"teeth_contact": contact, "lip_contact": contact,
                                      "stiffening_rule": "intersect"}})
     sim = Simulation(scene, loaded_anatomy=anatomy)
     sim.set_activations(activations)
+    if jaw:
+        sim.set_jaw(opening=jaw)
     stats = sim.step(1.0)
     if not stats.converged:
         raise RuntimeError(f"{activations}: {stats.reason}")
@@ -60,8 +80,8 @@ def main(argv=None):
              f"{' --no-contact' if not contact else ''}` at commit {commit()}: static "
              f"equilibrium, half face, muscle calibration `{Scene().calibration}` "
              "(solver/muscles.py), "
-             f"stiffening on (the paper's whole-brick rule), lip/teeth contact {'on' if contact else 'off'}, no lip/lip contact "
-             "(an aperture of 0 may mean crossing lips). Lip measures in mm "
+             f"stiffening on (the paper's whole-brick rule), lip/lip and lip/teeth contact "
+             f"{'on' if contact else 'off'}. Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "
              "displacement).", ""]
     t0 = time.perf_counter()
@@ -71,9 +91,11 @@ def main(argv=None):
                   f"At rest: aperture {rest['lip_aperture']:.2f} mm, width "
                   f"{rest['lip_width']:.2f} mm.", "",
                   "| muscle | a | d aperture | protrusion | d width |", "|---|---|---|---|---|"]
+        states = [rest]
         for m in MUSCLE_NAMES:
             for a in (0.5, 1.0):
                 o = solve(anatomy, {m: a}, contact).outputs()
+                states.append(o)
                 lines.append(f"| {m} | {a:g} | {o['lip_aperture'] - rest['lip_aperture']:+.2f} | "
                              f"{o['lip_protrusion']:+.2f} | {o['lip_width'] - rest['lip_width']:+.2f} |")
             print(f"{name}: {m} done ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -86,7 +108,18 @@ def main(argv=None):
                          title=f"{name}: {case} at a = 1")
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
                          f"{o['lip_width']:.2f} | ![{case}](img/{tag}) |")
-        lines.append("")
+        lines += ["", f"### Speech range ({name})", "",
+                  "| state | aperture | protrusion | width |", "|---|---|---|---|"]
+        for case, (act, jaw) in SPEECH.items():
+            o = solve(anatomy, act, contact, jaw).outputs()
+            states.append(o)
+            lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
+                         f"{o['lip_width']:.2f} |")
+        rng = {k: (min(o[k] for o in states), max(o[k] for o in states)) for k in KEYS}
+        lines += ["| range over this page's states | " + " | ".join(
+            f"{lo:+.2f} to {hi:+.2f}" if k == "lip_protrusion" else f"{lo:.2f} to {hi:.2f}"
+            for k, (lo, hi) in rng.items()) + " |", PUBLISHED, ""]
+        print(f"{name}: speech range done ({time.perf_counter() - t0:.0f} s)", flush=True)
     lines += ["## Against the paper", "",
               "RIS widens the mouth and pulls the corners back; OOP protrudes the lips and "
               "narrows the aperture; OOP + BUC protrudes less than OOP alone and closes the "

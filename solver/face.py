@@ -25,6 +25,7 @@ from .muscles import MuscleProperties
 from .terms.cables import Cables
 from .strain import log_principal_strains
 from .terms.stiffening import Stiffening, muscle_neighbourhoods, muscle_weights
+from .transient import relax as relax_to_equilibrium
 
 LIP_OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width", "upper_lip_protrusion",
                "lower_lip_protrusion")
@@ -152,10 +153,25 @@ class FaceModel:
         jaw."""
         return 0.0 if self.jaw is None else self.jaw.geometry.incisor_opening(self.jaw.start)
 
-    def solve_static(self, steps=2, **kw):
-        """Load-stepped equilibrium at the target activations and jaw pose; on failure
-        the displacements, the activations and the jaw stay at the last converged state."""
+    def solve_static(self, steps=2, relax=True, **kw):
+        """Load-stepped equilibrium at the target activations and jaw pose; where that
+        fails and ``relax``, the equilibrium the damped face settles into
+        (solver.transient.relax: past the limit points of a folding lip and the cycling
+        of contact); res.relaxation is its RelaxResult (None when load stepping
+        sufficed). On failure the displacements, the activations and the jaw stay at the
+        last converged state."""
         res = self.model.solve_static(steps=steps, **kw)
+        res.relaxation = None
+        if not res.converged and relax:
+            start = self.activation.start.copy()
+            rel = relax_to_equilibrium(self.model)
+            res.relaxation = rel
+            if rel.converged:
+                res.converged, res.reason = True, ""
+                res.displacement = self.model.u.copy()
+            else:
+                self.activation.start = start
+                res.reason = f"{res.reason}; then {rel.reason}"
         self.end_step(res.converged)
         return res
 

@@ -145,6 +145,11 @@ class Model:
         self.terms.append(term)
         self._system = None
 
+    def remove_term(self, term):
+        """Take a term out of the model (by identity); the system is rebuilt on next use."""
+        self.terms = [t for t in self.terms if t is not term]
+        self._system = None
+
     @property
     def elasticity(self):
         return self.terms[0]

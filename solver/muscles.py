@@ -9,8 +9,8 @@ alpha dT = -a s F_max / (A E), so that T = s F_max at a = 1 and eps = 0 (s: the 
 per-muscle force scale, default 1). The force falls linearly as the cable shortens and
 vanishes at eps = -a s F_max / (A E) = -a s eps_c.
 
-Constants of the `physiological` calibration (MuscleProperties' defaults; the `paper`
-calibration replaces sigma_max, eps_c and the stiffening factor: calibrated below):
+Constants of the `physiological` calibration (the `paper` calibration, the default,
+replaces sigma_max, eps_c and the stiffening factor: calibrated below):
 * Peak force per fibre F_max = sigma_max * pi r^2: the maximum stress of skeletal muscle
   times the muscle's cross-section, a circle of the muscle's radius r (the same r that
   bounds its stiffened neighbourhood, below).
@@ -95,6 +95,7 @@ def calibrated(name):
 
 
 CALIBRATIONS = ("physiological", "paper")
+DEFAULT_CALIBRATION = "physiological"
 
 
 def _per_muscle(value):
@@ -103,18 +104,24 @@ def _per_muscle(value):
 
 @dataclass
 class MuscleProperties:
-    """Per-muscle constants (dicts keyed by MUSCLE_NAMES). f_max defaults to
-    sigma_max pi r^2 over the stiffening radii (one stress for all ten muscles)."""
+    """Per-muscle constants (dicts keyed by MUSCLE_NAMES). sigma_max, eps_contraction and
+    stiffening_max default to the named calibration's (``calibrated``; the default
+    ``paper``); f_max defaults to sigma_max pi r^2 over the stiffening radii (one stress
+    for all ten muscles)."""
 
     f_max: dict = None                                  # N per fibre at a = 1
     force_scale: dict = _per_muscle(1.0)                # user scale of the active force
-    sigma_max: float = SIGMA_MAX_MPA                    # MPa
-    eps_contraction: float = EPS_CONTRACTION
-    stiffening_max: float = E_CONTRACTED_KPA / E_TISSUE_KPA
+    calibration: str = DEFAULT_CALIBRATION              # gives the three constants below
+    sigma_max: float = None                             # MPa
+    eps_contraction: float = None
+    stiffening_max: float = None
     stiffening_radius: dict = field(default_factory=lambda: dict(STIFFENING_RADIUS_MM))
     stiffening_rule: str = "volume"                     # or "intersect" (solver.terms.stiffening)
 
     def __post_init__(self):
+        for name, value in calibrated(self.calibration).items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
         if not (isinstance(self.sigma_max, (int, float)) and 0 < self.sigma_max < math.inf):
             raise ParameterError(f"sigma_max = {self.sigma_max!r} must be a finite number > 0 "
                                  "(MPa)")
@@ -124,15 +131,17 @@ class MuscleProperties:
                           for m, r in self.stiffening_radius.items()}
         self._check_per_muscle("f_max")
         self._check_per_muscle("force_scale")
-        for name in ("sigma_max", "eps_contraction"):
-            v = getattr(self, name)
-            if not v > 0:
-                raise ParameterError(f"{name} = {v!r} must be > 0")
+        if not (isinstance(self.eps_contraction, (int, float))
+                and 0 < self.eps_contraction < math.inf):
+            raise ParameterError(f"eps_contraction = {self.eps_contraction!r} must be a "
+                                 "finite number > 0")
         if self.stiffening_rule not in ("volume", "intersect"):
             raise ParameterError(f"stiffening_rule = {self.stiffening_rule!r} is not one of "
                                  "['volume', 'intersect']")
-        if not self.stiffening_max >= 1.0:
-            raise ParameterError(f"stiffening_max = {self.stiffening_max!r} must be >= 1")
+        if not (isinstance(self.stiffening_max, (int, float))
+                and 1.0 <= self.stiffening_max < math.inf):
+            raise ParameterError(f"stiffening_max = {self.stiffening_max!r} must be a "
+                                 "finite number >= 1")
 
     def _check_per_muscle(self, name):
         d = getattr(self, name)

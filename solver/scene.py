@@ -25,7 +25,7 @@ recorded outputs and, for standalone runs, activation schedules.
     [muscles]
     driven = ["OOP", "OOM"]         # default: all ten
     force_scale = { OOP = 1.0 }     # optional, per muscle
-    calibration = "physiological"   # | "paper": the muscle constants
+    calibration = "paper"           # | "physiological": the muscle constants
                                     # (solver.muscles.calibrated); the three keys
                                     # below, where given, replace the calibration's:
     sigma_max = 0.24                # optional, MPa: the peak muscle stress
@@ -99,7 +99,7 @@ from .errors import FaceFMUError
 from .fidelity import FIDELITIES, REDUCED, fidelity_overrides
 from .jaw import JAW_RANGES
 from .linsolve import SOLVERS
-from .muscles import CALIBRATIONS, calibrated
+from .muscles import CALIBRATIONS, DEFAULT_CALIBRATION, calibrated
 from .terms.contact import PENALTY
 
 ANALYSES = ("static", "transient")
@@ -149,7 +149,7 @@ class Scene:
     rows: int = None
     driven: tuple = MUSCLE_NAMES
     force_scale: dict = field(default_factory=dict)
-    calibration: str = "physiological"
+    calibration: str = DEFAULT_CALIBRATION
     sigma_max: float = None
     contraction_strain: float = None
     stiffening_max: float = None

@@ -141,9 +141,12 @@ class Simulation:
             self.face.end_step(stats.converged)
         else:
             res = self.face.solve_static()
-            stats = StepStats(converged=res.converged, substeps=len(res.steps),
-                              newton_iterations=res.iterations, cutbacks=res.cutbacks,
-                              reason=res.reason)
+            rel = res.relaxation
+            stats = StepStats(converged=res.converged,
+                              substeps=len(res.steps) + (rel.substeps if rel else 0),
+                              newton_iterations=res.iterations
+                              + (rel.newton_iterations if rel else 0),
+                              cutbacks=res.cutbacks, reason=res.reason)
         if stats.converged:
             self.t = float(t_end)
         self.last = stats

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver.muscles import (CALIBRATIONS, MuscleProperties, calibrated, paper_calibration,
-                            peak_force)
+from solver.errors import ParameterError
+from solver.muscles import (CALIBRATIONS, DEFAULT_CALIBRATION, MuscleProperties, calibrated,
+                            paper_calibration, peak_force)
 from solver.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
 from solver.scene import SceneError, parse_scene
 
@@ -21,6 +22,10 @@ def test_the_calibrations_set_the_cable_and_stiffening_constants():
     assert phys == {"sigma_max": 0.1, "eps_contraction": 0.5,
                     "stiffening_max": pytest.approx(110.0 / 15.0)}
     props = MuscleProperties(**paper)
+    for name, bad in (("sigma_max", float("inf")), ("eps_contraction", float("nan")),
+                      ("stiffening_max", 0.5), ("calibration", "stronger")):
+        with pytest.raises(ParameterError, match=name):
+            MuscleProperties(**{name: bad})
     for m in ("OOP", "RIS"):                     # one stress, each muscle's cross-section
         assert props.f_max[m] == pytest.approx(peak_force(props.stiffening_radius[m],
                                                           paper["sigma_max"]))
@@ -31,7 +36,10 @@ def test_the_calibrations_set_the_cable_and_stiffening_constants():
 def test_scene_keys_pick_a_calibration_and_override_its_constants():
     sc = parse_scene({"muscles": {"calibration": "physiological", "sigma_max": 0.3}})
     assert sc.muscle_constants() == dict(calibrated("physiological"), sigma_max=0.3)
-    assert parse_scene({}).muscle_constants() == calibrated("physiological")
+    assert parse_scene({}).muscle_constants() == calibrated(DEFAULT_CALIBRATION)
+    assert MuscleProperties().sigma_max == calibrated(DEFAULT_CALIBRATION)["sigma_max"]
+    assert MuscleProperties(calibration="physiological").f_max["OOP"] == pytest.approx(
+        peak_force(3.0, 0.1))
     for muscles, culprit in (({"calibration": "stronger"}, "calibration"),
                              ({"sigma_max": -1.0}, "sigma_max"),
                              ({"stiffening_max": 0.5}, "stiffening_max"),

@@ -169,3 +169,31 @@ def test_figures_8_to_10_under_the_paper_calibration_in_transient_analysis():
     f_half, _ = _cheek_on_teeth(res["BUC/2"][0], cheek)
     f_full, _ = _cheek_on_teeth(res["BUC"][0], cheek)
     assert f_half > 0.01 and f_full > 1.2 * f_half, (f_half, f_full)
+
+
+def test_a_static_equilibrium_past_the_lip_fold_is_the_transient_steady_state():
+    """OOP at 1 under the `paper` calibration, static, lip/lip and lip/teeth contact, on
+    the generic face: load-stepped Newton stops at a limit point (the compressed lip
+    ring folds) and the damped relaxation goes on to the equilibrium. That equilibrium is
+    checked outside the static solver: the transient analysis of the same face and
+    activation (inertia, the paper's Rayleigh damping), held for 0.8 s, settles at it."""
+    anatomy = load_anatomy("generic", "coarse", True)
+    out = {}
+    for analysis in ("static", "transient"):
+        scene = parse_scene({"scene": {"analysis": analysis},
+                             "muscles": {"driven": ["OOP"], "calibration": "paper"},
+                             "effects": {"teeth_contact": True, "lip_contact": True}})
+        sim = Simulation(scene, loaded_anatomy=anatomy)
+        sim.set_activations({"OOP": 1.0})
+        if analysis == "static":
+            res = sim.face.solve_static()
+            assert res.converged, res.reason
+            assert res.relaxation is not None and res.relaxation.converged
+        else:
+            for t in (0.1, 0.4, 0.8):
+                assert sim.step(t).converged, sim.last.reason
+        out[analysis] = sim.outputs()
+    st, tr = out["static"], out["transient"]
+    assert st["lip_protrusion"] > 1.0
+    for key in ("lip_protrusion", "lip_width", "upper_lip_protrusion", "lower_lip_protrusion"):
+        assert abs(st[key] - tr[key]) < 0.05, (key, st[key], tr[key])

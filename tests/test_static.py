@@ -168,3 +168,39 @@ def test_a_load_step_that_creeps_on_in_ever_smaller_steps_fails_with_a_reason(mo
     assert "increment fell below" in res.reason and "residual jump" in res.reason
     assert len(calls) < 200
     assert np.array_equal(model.u, before)
+
+
+def test_damped_relaxation_reaches_the_load_stepped_equilibrium():
+    """Where load-stepped Newton converges, the damped relaxation (solver.transient.relax)
+    ends at the same equilibrium, to Newton's tolerance, and leaves no damping term."""
+    from solver.transient import relax
+    mesh = box(2, 2, 4, (2.0, 2.0, 8.0))
+    results = []
+    for how in ("newton", "relax"):
+        model = solver.Model(mesh)
+        model.fix(mesh.node_sets["zmin"])
+        model.add_force(mesh.node_sets["zmax"], (2e-4, 0.0, -2e-4))
+        n_terms = len(model.terms)
+        if how == "newton":
+            assert model.solve_static().converged
+        else:
+            rel = relax(model)
+            assert rel.converged and rel.pseudo_time > 0 and rel.substeps > 0, rel
+            assert len(model.terms) == n_terms
+        results.append(model.u.copy())
+    assert np.abs(results[0]).max() > 0.1
+    assert np.allclose(results[0], results[1], atol=1e-4)
+
+
+def test_relaxation_without_an_equilibrium_fails_and_leaves_the_state_unchanged():
+    """A free block under a force has no static equilibrium: the damped block drifts,
+    the undamped Newton fails, and after t_max the model is back where it started."""
+    from solver.transient import relax
+    mesh = box(1, 1, 1, (2.0, 2.0, 2.0))
+    model = solver.Model(mesh)
+    model.add_force(np.arange(mesh.n_nodes), (0.0, 0.0, 1e-4))
+    before = model.u.copy()
+    terms = list(model.terms)
+    rel = relax(model, t_max=0.3)
+    assert not rel.converged and "no static equilibrium" in rel.reason
+    assert np.array_equal(model.u, before) and model.terms == terms

@@ -28,7 +28,6 @@ import numpy as np
 
 from .._cache import user_cache_dir
 from ..errors import FaceFMUError
-from ..muscles import calibrated
 from ..terms.contact import PENALTY
 
 FORMAT = 1
@@ -63,9 +62,7 @@ def model_key(scene):
             "force_scale": {m: float(v) for m, v in sorted(scene.force_scale.items())
                             if v != 1.0},
             "stiffening": bool(scene.stiffening), "stiffening_rule": scene.stiffening_rule,
-            # only where not the physiological constants (the key a model trained there has)
-            **({"muscles": scene.muscle_constants()} if scene.muscle_constants() !=
-               calibrated("physiological") else {}),
+            "muscles": scene.muscle_constants(),
             "lip_contact": bool(scene.lip_contact), "teeth_contact": bool(scene.teeth_contact),
             "inertia": bool(scene.inertia), "damping": bool(scene.damping),
             "alpha": float(scene.alpha), "beta": float(scene.beta),
