@@ -90,17 +90,42 @@ def _cheek_on_teeth(sim, cheek):
     return force, np.concatenate(along) if along else np.zeros(0)
 
 
-def test_buc_presses_the_cheek_against_the_teeth(solved):
+def _presses_cheek_on_teeth(anatomy, half, full):
     """The paper's observable for BUC (its Figure 9: the cheek "compressed against the
-    teeth"): the teeth's contact force on the cheek nodes rises with BUC activation, and
-    the touching cheek nodes have moved towards the teeth (along the contact normal)."""
-    anatomy, res = solved
-    cheek = np.unique(anatomy.mesh.bricks[res["BUC"][0].face.regions["BUC"]])
-    f_half, _ = _cheek_on_teeth(res["BUC/2"][0], cheek)
-    f_full, along = _cheek_on_teeth(res["BUC"][0], cheek)
+    teeth") from the static states at BUC 0.5 and 1 (Simulations): the teeth's contact
+    force on the cheek nodes rises with the activation, and the touching cheek nodes have
+    moved towards the teeth (along the contact normal). (holds, what was measured)"""
+    cheek = np.unique(anatomy.mesh.bricks[full.face.regions["BUC"]])
+    f_half, _ = _cheek_on_teeth(half, cheek)
+    f_full, along = _cheek_on_teeth(full, cheek)
     # at rest the teeth push on nothing (the rest offsets: tests/test_contact.py)
-    assert f_half > 0.01 and f_full > 1.2 * f_half, (f_half, f_full)
-    assert len(along) >= 3 and np.mean(along) < 0, along
+    holds = (f_half > 0.01 and f_full > 1.2 * f_half and len(along) >= 3
+             and np.mean(along) < 0)
+    return holds, (f_half, f_full, along)
+
+
+def test_buc_presses_the_cheek_against_the_teeth(solved):
+    anatomy, res = solved
+    holds, measured = _presses_cheek_on_teeth(anatomy, res["BUC/2"][0], res["BUC"][0])
+    assert holds, measured
+
+
+def test_the_cheek_check_fails_for_a_buc_without_force():
+    """The check above can fail: BUC with a zero force scale (its stiffening alone) does
+    not press the cheek on the teeth."""
+    anatomy = load_anatomy("generic", "coarse", True)
+    sims = []
+    for a in (0.5, 1.0):
+        scene = parse_scene({"scene": {"analysis": "static"},
+                             "muscles": {"driven": ["BUC"], "force_scale": {"BUC": 0.0}},
+                             "effects": {"teeth_contact": True, "lip_contact": False,
+                                         "stiffening_rule": "intersect"}})
+        sim = Simulation(scene, loaded_anatomy=anatomy)
+        sim.set_activations({"BUC": a})
+        assert sim.step(1.0).converged, sim.last.reason
+        sims.append(sim)
+    holds, (f_half, f_full, along) = _presses_cheek_on_teeth(anatomy, *sims)
+    assert not holds and f_full == 0.0 and len(along) == 0
 
 
 def _pressed_lips(duration):
