@@ -25,7 +25,7 @@ recorded outputs and, for standalone runs, activation schedules.
     [muscles]
     driven = ["OOP", "OOM"]         # default: all ten
     force_scale = { OOP = 1.0 }     # optional, per muscle
-    calibration = "paper"           # | "physiological": the muscle constants
+    calibration = "paper"           # default "physiological": the muscle constants
                                     # (solver.muscles.calibrated); the three keys
                                     # below, where given, replace the calibration's:
     sigma_max = 0.24                # optional, MPa: the peak muscle stress
