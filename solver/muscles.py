@@ -9,8 +9,9 @@ alpha dT = -a s F_max / (A E), so that T = s F_max at a = 1 and eps = 0 (s: the 
 per-muscle force scale, default 1). The force falls linearly as the cable shortens and
 vanishes at eps = -a s F_max / (A E) = -a s eps_c.
 
-Constants of the `physiological` calibration (the `paper` calibration, the default,
-replaces sigma_max, eps_c and the stiffening factor: calibrated below):
+Constants of the `physiological` calibration, the default (DEFAULT_CALIBRATION; the
+`paper` calibration replaces sigma_max, eps_c and the stiffening factor: calibrated
+below):
 * Peak force per fibre F_max = sigma_max * pi r^2: the maximum stress of skeletal muscle
   times the muscle's cross-section, a circle of the muscle's radius r (the same r that
   bounds its stiffened neighbourhood, below).
@@ -105,8 +106,8 @@ def _per_muscle(value):
 @dataclass
 class MuscleProperties:
     """Per-muscle constants (dicts keyed by MUSCLE_NAMES). sigma_max, eps_contraction and
-    stiffening_max default to the named calibration's (``calibrated``; the default
-    ``paper``); f_max defaults to sigma_max pi r^2 over the stiffening radii (one stress
+    stiffening_max default to the named calibration's (``calibrated``; by default
+    DEFAULT_CALIBRATION, ``physiological``); f_max defaults to sigma_max pi r^2 over the stiffening radii (one stress
     for all ten muscles)."""
 
     f_max: dict = None                                  # N per fibre at a = 1
