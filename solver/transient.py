@@ -317,8 +317,8 @@ def relax(model, alpha=40.0, beta=0.03, ramp=0.1, chunk=0.1, t_max=2.0, tol=0.01
     folds) or where contact's active set cycles between iterates. Damped motion passes
     both, to the equilibrium the damped face settles into, as the transient analysis
     does; a load with no stable equilibrium keeps it moving and fails after t_max. With
-    the paper's alpha = 40 1/s and beta = 0.03 s every mode is overdamped (damping ratio >= 1.1, above),
-    so the slowest relaxes within a few tenths of a second.
+    the paper's alpha = 40 1/s and beta = 0.03 s every mode is overdamped (damping ratio
+    >= 1.1, above), so the slowest relaxes within a few tenths of a second.
 
     The model must hold no inertia or damping term of its own (a static model). On
     failure the model is back at its state before the call (u, load factor, contact
