@@ -108,6 +108,7 @@ def main(argv=None):
                          title=f"{name}: {case} at a = 1")
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
                          f"{o['lip_width']:.2f} | ![{case}](img/{tag}) |")
+            print(f"{name}: {case} done ({time.perf_counter() - t0:.0f} s)", flush=True)
         lines += ["", f"### Speech range ({name})", "",
                   "| state | aperture | protrusion | width |", "|---|---|---|---|"]
         for case, (act, jaw) in SPEECH.items():
@@ -115,6 +116,7 @@ def main(argv=None):
             states.append(o)
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
                          f"{o['lip_width']:.2f} |")
+            print(f"{name}: {case} done ({time.perf_counter() - t0:.0f} s)", flush=True)
         rng = {k: (min(o[k] for o in states), max(o[k] for o in states)) for k in KEYS}
         lines += ["| range over this page's states | " + " | ".join(
             f"{lo:+.2f} to {hi:+.2f}" if k == "lip_protrusion" else f"{lo:.2f} to {hi:.2f}"
