@@ -3,7 +3,8 @@ convergence check and (--fmu) the same cases through the built FMU with fmpy; a 
 
     python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
                                 [--anatomy generic|reference|FOLDER] [--level LEVEL]
-                                [--fidelity PRESET] [--out out/stress] [--doc FILE]
+                                [--fidelity PRESET] [--config NAME ...]
+                                [--out out/stress] [--doc FILE]
 
 With no options it runs every full case in process and through the FMU and rewrites
 docs/stability.md whole (commit, date, wall time, the table, the failures). --quick runs
@@ -11,8 +12,12 @@ the CI versions of the cases; --cases a subset; --no-fmu skips the FMU rows; the
 the report to OUT only, unless --doc names a file. --anatomy, --level and --fidelity run
 every case on another configuration (solver.stability.configured: the reference face, the
 generic face's paper level, a preset's mesh and tolerances); its rows are named
-CASE@CONFIGURATION. Writes OUT/stress.csv and
-OUT/stress.md; exits with 1 when a case fails.
+CASE@CONFIGURATION. --config runs the cases on several named configurations in one report
+(CONFIGURATIONS below; `--config all`: every one):
+
+    python benchmarks/stress.py --quick --config all --doc docs/stability_configurations.md
+
+Writes OUT/stress.csv and OUT/stress.md; exits with 1 when a case fails.
 
 Columns: pass; steps (accepted communication steps) and refused ones; substeps, Newton
 iterations, cutbacks (total) and worst cutbacks (in one step); min det F over all Gauss
@@ -43,6 +48,14 @@ from solver.scene import parse_scene  # noqa: E402
 from solver.provenance import commit  # noqa: E402
 from table import report  # noqa: E402
 
+# the configurations of --config: (anatomy, level, fidelity) for solver.stability.configured;
+# "coarse" is the cases' own (the coarse generic half face at the scene's tolerances)
+CONFIGURATIONS = {"coarse": ("generic", None, None), "paper": ("generic", "paper", None),
+                  "reference": ("reference", None, None),
+                  "reference+balanced": ("reference", None, "balanced"),
+                  "balanced": ("generic", None, "balanced"), "fast": ("generic", None, "fast"),
+                  "realtime": ("generic", None, "realtime")}
+
 KEYS = ["case", "pass", "contact", "steps", "refused", "substeps", "newton", "cutbacks",
         "worst_cutbacks", "min_det_f", "lip_pen_mm", "teeth_pen_mm", "halving_mm",
         "fmu_vs_solver_mm", "memory_mb", "wall_s"]
@@ -68,7 +81,11 @@ def run_solver(selected, halving):
     rows, runs, notes = [], {}, []
     for case in selected:
         print(f"-- {case.name}: {case.description}", flush=True)
-        run = S.run_case(case)
+        try:
+            run = S.run_case(case)
+        except Exception as exc:        # a configuration that cannot open: a FAIL row
+            run = S.CaseRun(case.name)
+            run.problem(None, f"{type(exc).__name__}: {exc}")
         runs[case.name] = run
         change = float("nan")
         if halving and case.halving and run.passed:
@@ -200,27 +217,44 @@ def main(argv=None):
     ap.add_argument("--level", help="the generic face's level (coarse, medium, paper, fine)")
     ap.add_argument("--fidelity", help="a preset of solver.fidelity (fast, balanced, "
                     "accurate)")
+    ap.add_argument("--config", nargs="+", choices=[*CONFIGURATIONS, "all"],
+                    help="named configurations, one report (overrides --anatomy, --level "
+                    "and --fidelity)")
     args = ap.parse_args(argv)
+    reference = str(ROOT.parent / "shared" / "data" / "reference-face")
     if args.anatomy == "reference":
-        args.anatomy = str(ROOT.parent / "shared" / "data" / "reference-face")
-    other = args.anatomy != "generic" or args.level or args.fidelity
+        args.anatomy = reference
+    configs = [(args.anatomy, args.level, args.fidelity)]
+    if args.config:
+        names = list(CONFIGURATIONS) if "all" in args.config else args.config
+        configs = [CONFIGURATIONS[n] for n in names]
+        configs = [(reference if a == "reference" else a, lv, f) for a, lv, f in configs]
+        if not Path(reference).is_dir():
+            print(f"no reference face at {reference}: its configurations are skipped")
+            configs = [c for c in configs if c[0] != reference]
+    other = args.anatomy != "generic" or args.level or args.fidelity or args.config
     if args.doc is None and not (args.quick or args.cases or args.no_fmu or args.no_halving
                                  or other):
         args.doc = str(ROOT / "docs" / "stability.md")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    selected = [S.configured(c, args.anatomy, args.level, args.fidelity)
-                for c in S.cases(full=not args.quick) if not args.cases or c.name in args.cases]
-    if args.cases and len(selected) != len(args.cases):
+    base = [c for c in S.cases(full=not args.quick) if not args.cases or c.name in args.cases]
+    if args.cases and len(base) != len(args.cases):
         known = [c.name for c in S.cases(full=not args.quick)]
         raise SystemExit(f"unknown case in {args.cases}; known: {known}")
     t0 = time.perf_counter()
-    rows, runs, notes = run_solver(selected, not args.no_halving)
-    problems = {c.name: runs[c.name].problems for c in selected}
-    if not args.no_fmu:
-        fmu_rows, fmu_problems = run_fmu(selected, runs, out, notes, args.fmu_path)
-        rows += fmu_rows
-        problems.update({f"fmu:{k}": v for k, v in fmu_problems.items()})
+    rows, problems, notes, fmu = [], {}, [], args.fmu_path
+    for anatomy, level, fidelity in configs:
+        selected = [S.configured(c, anatomy, level, fidelity) for c in base]
+        solver_rows, runs, more = run_solver(selected, not args.no_halving)
+        rows += solver_rows
+        notes += more
+        problems.update({c.name: runs[c.name].problems for c in selected})
+        if not args.no_fmu:
+            fmu = fmu or build_fmu(out / "fmu")
+            fmu_rows, fmu_problems = run_fmu(selected, runs, out, notes, fmu)
+            rows += fmu_rows
+            problems.update({f"fmu:{k}": v for k, v in fmu_problems.items()})
     wall = time.perf_counter() - t0
     print()
     report(rows, KEYS, csv_path=out / "stress.csv")

@@ -784,6 +784,9 @@ def check_fmu_run(case, result, reference=None, bounds=None):
     steps (fmi2Discard with the outputs unchanged) are the case's, outputs finite and in
     bounds, statistics reported, memory bounded, and the outputs equal to the same case
     run in this process (reference: its CaseRun) within FMU_MATCH_TOLERANCE."""
+    if "init_status" in result:
+        return ([f"initialization failed with status {result['init_status']}"],
+                {"memory_growth_mb": float("nan"), "fmu_vs_solver": float("nan")})
     problems = []
     refused = [k for k, s in enumerate(result["statuses"]) if s != 0]
     if refused != list(case.refused):
