@@ -8,7 +8,8 @@ Static equilibrium, half face (symmetric activations), the default muscle calibr
 activation stiffening on (the paper's whole-brick rule, effects.stiffening_rule =
 "intersect", as in its scenes), lip/lip and lip/teeth contact on (off with --no-contact).
 Where load-stepped Newton stops at a limit point (a folding lip) the damped relaxation
-finds the equilibrium (solver.transient.relax). The reference face is used where
+finds the equilibrium (solver.transient.relax); a state where that fails too is
+printed with its reason and tabulated as nan. The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
 
 Speech range: the four synergies of the motor-control example
@@ -59,8 +60,14 @@ def solve(anatomy, activations, contact, jaw=0.0):
         sim.set_jaw(opening=jaw)
     stats = sim.step(1.0)
     if not stats.converged:
-        raise RuntimeError(f"{activations}: {stats.reason}")
+        print(f"no equilibrium for {activations}, jaw {jaw} deg: {stats.reason}", flush=True)
+        return None
     return sim
+
+
+def outputs(sim):
+    """The lip outputs of a solved state; NaN where the solve found no equilibrium."""
+    return {k: float("nan") for k in KEYS} if sim is None else sim.outputs()
 
 
 def main(argv=None):
@@ -86,7 +93,7 @@ def main(argv=None):
              "displacement).", ""]
     t0 = time.perf_counter()
     for name, anatomy in anatomies.items():
-        rest = solve(anatomy, {"OOP": 0.0}, contact).outputs()
+        rest = solve(anatomy, {"OOP": 0.0}, contact).outputs()    # the face at rest
         lines += [f"## {name}", "",
                   f"At rest: aperture {rest['lip_aperture']:.2f} mm, width "
                   f"{rest['lip_width']:.2f} mm.", "",
@@ -94,7 +101,7 @@ def main(argv=None):
         states = [rest]
         for m in MUSCLE_NAMES:
             for a in (0.5, 1.0):
-                o = solve(anatomy, {m: a}, contact).outputs()
+                o = outputs(solve(anatomy, {m: a}, contact))
                 states.append(o)
                 lines.append(f"| {m} | {a:g} | {o['lip_aperture'] - rest['lip_aperture']:+.2f} | "
                              f"{o['lip_protrusion']:+.2f} | {o['lip_width'] - rest['lip_width']:+.2f} |")
@@ -102,22 +109,25 @@ def main(argv=None):
         lines += ["", "| case | aperture | protrusion | width | picture |", "|---|---|---|---|---|"]
         for case, act in CASES.items():
             sim = solve(anatomy, act, contact)
-            o = sim.outputs()
+            o = outputs(sim)
             tag = f"atlas_{name.split()[0]}_{case.replace(' + ', '_')}.png"
-            plot_anatomy(anatomy, out / "img" / tag, displacement=sim.face.u,
-                         title=f"{name}: {case} at a = 1")
+            if sim is not None:
+                plot_anatomy(anatomy, out / "img" / tag, displacement=sim.face.u,
+                             title=f"{name}: {case} at a = 1")
+            picture = f"![{case}](img/{tag})" if sim is not None else "no equilibrium"
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
-                         f"{o['lip_width']:.2f} | ![{case}](img/{tag}) |")
+                         f"{o['lip_width']:.2f} | {picture} |")
             print(f"{name}: {case} done ({time.perf_counter() - t0:.0f} s)", flush=True)
         lines += ["", f"### Speech range ({name})", "",
                   "| state | aperture | protrusion | width |", "|---|---|---|---|"]
         for case, (act, jaw) in SPEECH.items():
-            o = solve(anatomy, act, contact, jaw).outputs()
+            o = outputs(solve(anatomy, act, contact, jaw))
             states.append(o)
             lines.append(f"| {case} | {o['lip_aperture']:.2f} | {o['lip_protrusion']:+.2f} | "
                          f"{o['lip_width']:.2f} |")
             print(f"{name}: {case} done ({time.perf_counter() - t0:.0f} s)", flush=True)
-        rng = {k: (min(o[k] for o in states), max(o[k] for o in states)) for k in KEYS}
+        solved = [o for o in states if o[KEYS[0]] == o[KEYS[0]]]
+        rng = {k: (min(o[k] for o in solved), max(o[k] for o in solved)) for k in KEYS}
         lines += ["| range over this page's states | " + " | ".join(
             f"{lo:+.2f} to {hi:+.2f}" if k == "lip_protrusion" else f"{lo:.2f} to {hi:.2f}"
             for k, (lo, hi) in rng.items()) + " |", PUBLISHED, ""]
