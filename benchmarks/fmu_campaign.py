@@ -2,7 +2,7 @@
 communication steps, lip and teeth contact on; every failure reproducible from its seed.
 
     python benchmarks/fmu_campaign.py [--seeds 0-199] [--duration 0.1] [--fidelity balanced]
-                                      [--batch 20] [--keep DIR]
+                                      [--batch 20] [--keep DIR] [--doc FILE]
 
 Schedule of seed s (``schedule(s, duration)``, numpy's generator seeded s): communication
 steps of a size drawn log-uniformly between 0.1 and 20 ms (rounded to 0.1 ms) until
@@ -12,8 +12,12 @@ fresh processes of --batch seeds each. A seed passes when every doStep returns f
 outputs stay finite with lip_aperture >= 0, the state serialized at the end has no lip
 node inside the other lip and none behind the teeth by more than the contact tolerance
 (solver.stability.Probe, outside the model), and its process exits with status 0.
-Prints one line per seed and the failing seeds; rerun one with --seeds S. Exits 1 on a
-failure.
+Prints one line per seed and the failing seeds; rerun one with --seeds S; --doc writes
+the same as a markdown report (the command, commit, date and wall time in its header):
+
+    python benchmarks/fmu_campaign.py --doc docs/campaign.md
+
+Exits 1 on a failure.
 """
 
 import argparse
@@ -118,6 +122,7 @@ def main(argv=None):
     ap.add_argument("--fidelity", default="balanced")
     ap.add_argument("--batch", type=int, default=20, help="seeds per fmpy process")
     ap.add_argument("--keep", help="build into and keep this folder")
+    ap.add_argument("--doc", help="write a markdown report there")
     args = ap.parse_args(argv)
     from solver.stability import CONTACT_TOLERANCE
     todo = seeds(args.seeds)
@@ -131,7 +136,7 @@ def main(argv=None):
     print(f"{len(todo)} random schedules of {args.duration} s (steps {SHORTEST * 1e3:g} to "
           f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, fidelity "
           f"{args.fidelity!r}, lip and teeth contact; seeds {args.seeds}", flush=True)
-    failed, t0 = {}, time.perf_counter()
+    failed, rows, t0 = {}, [], time.perf_counter()
     for i in range(0, len(todo), args.batch):
         batch = todo[i:i + args.batch]
         jobs = [{"seed": s, "steps": schedule(s, args.duration)} for s in batch]
@@ -157,6 +162,8 @@ def main(argv=None):
                     problem = f"penetration lips {lips:.3f} mm, teeth {teeth:.3f} mm"
                 if problem:
                     failed[s] = problem
+                rows.append((s, len(job["steps"]), r["cutbacks"], lips, teeth,
+                             problem or "pass"))
                 print(f"seed {s:4d}: {len(job['steps']):4d} steps, {r['cutbacks']:3d} "
                       f"cutbacks, lips {lips:.3f} teeth {teeth:.3f} mm: "
                       f"{problem or 'pass'}", flush=True)
@@ -169,9 +176,40 @@ def main(argv=None):
     for s, p in sorted(failed.items()):
         print(f"  seed {s}: {p}  (python benchmarks/fmu_campaign.py --seeds {s} "
               f"--duration {args.duration} --fidelity {args.fidelity!r})")
+    if args.doc:
+        write_doc(args, argv, todo, rows, failed, wall, CONTACT_TOLERANCE)
     if tmp:
         tmp.cleanup()
     return 1 if failed else 0
+
+
+def write_doc(args, argv, todo, rows, failed, wall, tolerance):
+    """The campaign as a markdown report at args.doc."""
+    import datetime
+    import platform
+    sys.path.insert(0, str(ROOT))
+    from solver.provenance import commit
+    command = "python benchmarks/fmu_campaign.py " + " ".join(argv or sys.argv[1:])
+    lines = ["# Randomized campaign through the FMU", "",
+             f"Made by `{command.strip()}` at commit {commit()} on "
+             f"{datetime.date.today().isoformat()}, {platform.machine()} (Python "
+             f"{platform.python_version()}), {wall / 60:.1f} min. Each seed: a schedule of "
+             f"{args.duration:g} s, communication steps log-uniform between "
+             f"{SHORTEST * 1e3:g} and {LONGEST * 1e3:g} ms, each with new activations of all "
+             f"ten muscles uniform in [0, 1]; the default scene at fidelity "
+             f"`{args.fidelity}`, lip and teeth contact on, through fmpy. A seed passes when "
+             "every doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, "
+             "the final state has no lip node inside the other lip and none behind the "
+             f"teeth by more than {tolerance} mm (measured outside the model), and its "
+             "process exits with status 0. Rerun a seed with `--seeds S`.", "",
+             f"**{len(todo) - len(failed)} of {len(todo)} schedules passed.**", "",
+             "| seed | steps | cutbacks | lips (mm) | teeth (mm) | result |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {s} | {n} | {c} | {lp:.3f} | {tt:.3f} | {res} |"
+              for s, n, c, lp, tt, res in rows]
+    missing = sorted(set(failed) - {r[0] for r in rows})
+    lines += [f"| {s} | - | - | - | - | {failed[s]} |" for s in missing]
+    Path(args.doc).write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
