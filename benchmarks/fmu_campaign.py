@@ -2,30 +2,32 @@
 communication steps, lip and teeth contact on; every failure reproducible from its seed.
 
     python benchmarks/fmu_campaign.py [--seeds 0-199] [--duration 0.1] [--fidelity balanced]
-                                      [--batch 20] [--keep DIR] [--doc FILE]
+                                      [--batch 20] [--jobs 1] [--keep DIR] [--doc FILE]
 
 Schedule of seed s (``schedule(s, duration)``, numpy's generator seeded s): communication
 steps of a size drawn log-uniformly between 0.1 and 20 ms (rounded to 0.1 ms) until
 `duration` is reached, each with new activations of all ten muscles, uniform in [0, 1].
 FaceFMU (built once by build_fmu.py) runs the default scene at --fidelity through fmpy, in
-fresh processes of --batch seeds each. A seed passes when every doStep returns fmi2OK, the
+fresh processes of --batch seeds each, --jobs of them at a time. A seed passes when every doStep returns fmi2OK, the
 outputs stay finite with lip_aperture >= 0, the state serialized at the end has no lip
 node inside the other lip and none behind the teeth by more than the contact tolerance
 (solver.stability.Probe, outside the model), and its process exits with status 0.
 Prints one line per seed and the failing seeds; rerun one with --seeds S; --doc writes
 the same as a markdown report (the command, commit, date and wall time in its header):
 
-    python benchmarks/fmu_campaign.py --doc docs/campaign.md
+    python benchmarks/fmu_campaign.py --jobs 2 --doc docs/campaign.md
 
 Exits 1 on a failure.
 """
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +123,7 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=0.1, help="s per schedule")
     ap.add_argument("--fidelity", default="balanced")
     ap.add_argument("--batch", type=int, default=20, help="seeds per fmpy process")
+    ap.add_argument("--jobs", type=int, default=1, help="fmpy processes at a time")
     ap.add_argument("--keep", help="build into and keep this folder")
     ap.add_argument("--doc", help="write a markdown report there")
     args = ap.parse_args(argv)
@@ -137,25 +140,32 @@ def main(argv=None):
           f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, fidelity "
           f"{args.fidelity!r}, lip and teeth contact; seeds {args.seeds}", flush=True)
     failed, rows, t0 = {}, [], time.perf_counter()
-    for i in range(0, len(todo), args.batch):
+    def run_batch(i):
         batch = todo[i:i + args.batch]
         jobs = [{"seed": s, "steps": schedule(s, args.duration)} for s in batch]
         jobs_path = base / f"jobs{i}.json"
         jobs_path.write_text(json.dumps(jobs))
+        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") \
+            if args.jobs > 1 else None                 # one core per process
         proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), args.fidelity,
                                str(jobs_path), str(base)], capture_output=True, text=True,
-                              cwd=base)
-        done = {}
-        for line in proc.stdout.splitlines():
-            if line.startswith("RESULT "):
-                r = json.loads(line[7:])
-                done[r["seed"]] = r
-        for job in jobs:
-            s = job["seed"]
-            r = done.get(s)
-            if r is None:
-                failed[s] = f"no result (process exit {proc.returncode}): {proc.stderr[-300:]}"
-            else:
+                              cwd=base, env=env)
+        return jobs, proc
+
+    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+        for jobs, proc in pool.map(run_batch, range(0, len(todo), args.batch)):
+            done = {}
+            for line in proc.stdout.splitlines():
+                if line.startswith("RESULT "):
+                    r = json.loads(line[7:])
+                    done[r["seed"]] = r
+            for job in jobs:
+                s = job["seed"]
+                r = done.get(s)
+                if r is None:
+                    failed[s] = (f"no result (process exit {proc.returncode}): "
+                                 f"{proc.stderr[-300:]}")
+                    continue
                 problem = r["problem"]
                 lips, teeth = penetrations(probe, r["state"])
                 if not problem and max(lips, teeth) > CONTACT_TOLERANCE:
@@ -167,9 +177,9 @@ def main(argv=None):
                 print(f"seed {s:4d}: {len(job['steps']):4d} steps, {r['cutbacks']:3d} "
                       f"cutbacks, lips {lips:.3f} teeth {teeth:.3f} mm: "
                       f"{problem or 'pass'}", flush=True)
-        if proc.returncode != 0 and all(s in done for s in batch):
-            for s in batch:
-                failed.setdefault(s, f"the process exited with {proc.returncode}")
+            if proc.returncode != 0 and all(job["seed"] in done for job in jobs):
+                for job in jobs:
+                    failed.setdefault(job["seed"], f"the process exited with {proc.returncode}")
     wall = time.perf_counter() - t0
     print(f"\n{len(todo) - len(failed)} of {len(todo)} schedules passed in {wall:.0f} s"
           + (f"; failed seeds: {' '.join(map(str, sorted(failed)))}" if failed else ""))
