@@ -137,6 +137,19 @@ def fresh(sim):
     sim.set_state(start)
 
 
+def test_an_fmu_that_fails_to_initialize_is_a_problem_not_a_pass():
+    """A case whose FMU instance could not leave initialization (stress_case.py records
+    init_status, e.g. a realtime fidelity with no trained model) fails the FMU check."""
+    case = S.cases()[0]
+    found, measures = S.check_fmu_run(case, {"rows": [], "statuses": [], "memory": {},
+                                             "rollback": {}, "wall": 0.0, "init_status": 4})
+    assert found == ["initialization failed with status 4"]
+    assert np.isnan(measures["fmu_vs_solver"])
+    ok, _ = S.check_fmu_run(case, {"rows": [], "statuses": [], "memory": {},
+                                   "rollback": {}, "wall": 0.0})
+    assert "initialization failed with status 4" not in ok
+
+
 def test_checks_catch_nan_inversion_penetration_and_bounds(fresh, probe):
     measures, problems = S.check_state(fresh, probe)
     assert problems == [] and measures["min_det_f"] == pytest.approx(1.0)
