@@ -8,10 +8,11 @@ Schedule of seed s (``schedule(s, duration)``, numpy's generator seeded s): comm
 steps of a size drawn log-uniformly between 0.1 and 20 ms (rounded to 0.1 ms) until
 `duration` is reached, each with new activations of all ten muscles, uniform in [0, 1].
 FaceFMU (built once by build_fmu.py) runs the default scene at --fidelity through fmpy, in
-fresh processes of --batch seeds each, --jobs of them at a time. A seed passes when every doStep returns fmi2OK, the
-outputs stay finite with lip_aperture >= 0, the state serialized at the end has no lip
-node inside the other lip and none behind the teeth by more than the contact tolerance
-(solver.stability.Probe, outside the model), and its process exits with status 0.
+fresh processes of --batch seeds each, --jobs of them at a time. A seed passes when every
+doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, the state
+serialized at the end has no lip node inside the other lip and none behind the teeth by
+more than the contact tolerance (solver.stability.Probe, outside the model), and its
+process exits with status 0.
 Prints one line per seed and the failing seeds; rerun one with --seeds S; --doc writes
 the same as a markdown report (the command, commit, date and wall time in its header):
 
