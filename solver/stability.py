@@ -23,8 +23,9 @@ more than 1000 steps; ``check_state``):
   statistics    substeps >= 1, Newton iterations >= 0 and cutbacks >= 0, the cutbacks
                 also in Simulation.outputs()
 A refused step (no convergence after every cutback) must leave the state exactly as it
-was (t, u, v, activations, dissipated energy); a case expects no refusal unless it names
-the step. ``run_case`` returns the outputs after each step and the worst values seen.
+was (t, u, v, activations, dissipated energy), and the accepted steps must equal, bit for
+bit, a fresh run that never tried the refused ones; a case expects no refusal unless it
+names the step. ``run_case`` returns the outputs after each step and the worst values seen.
 A long run also checks that memory does not grow and, under a held activation, that the
 state settles on the static equilibrium and never drifts away from it. A rollback case
 restores the state after its steps and repeats the last step many times: every repeat
@@ -277,8 +278,9 @@ def cases(full=False):
     sc = scene_dict("refusal", ("OOP",), "ramp", max_substep=0.005, min_substep=0.004)
     sc["muscles"]["force_scale"] = {"OOP": 300.0}
     out.append(Case("refusal", "OOP at 300 x its force (inverts the tissue): the step is "
-                    "refused with the state unchanged, the next small step works", sc,
-                    [(0.005, {}), (0.005, {"OOP": 1.0}), (0.005, {"OOP": 0.002})],
+                    "refused with the state unchanged, the next small step works and "
+                    "equals a run that never tried the refused one", sc,
+                    [(0.005, {}), (0.005, {"OOP": 1.0}), (0.005, {"OOP": 0.0005})],
                     refused=(1,), halving=False))
     return out
 
@@ -699,6 +701,8 @@ def run_case(case, progress=None, probe=True):
     missing = [k for k in case.refused if k not in run.refused]
     if missing:
         run.problem(None, f"steps {missing} should have been refused")
+    elif case.refused and run.steps == n - len(case.refused):
+        _check_replay(case, run)
     if case.rest:
         moved = float(np.abs(sim.face.u).max())
         if not moved < REST_TOLERANCE:
@@ -718,6 +722,25 @@ def run_case(case, progress=None, probe=True):
     run.wall = time.perf_counter() - t_start
     sim.release()
     return run
+
+
+def _check_replay(case, run):
+    """A refusal leaves no trace: a fresh simulation that never saw the refused steps
+    gives the same lip outputs after every accepted step, bit for bit."""
+    from .entry import open_simulation
+    sim = open_simulation(parse_scene(case.scene, f"<case {case.name}, replayed>"))
+    kept = [s for k, s in enumerate(case.steps) if k not in case.refused]
+    for i, (h, acts) in enumerate(kept):
+        _set_inputs(sim, acts)
+        if not sim.step(sim.t + h).converged:
+            run.problem(None, f"the replay without the refused steps refused step {i}")
+            break
+        now, then = lip_outputs(sim), run.rows[i]
+        if any(now[key] != then[key] for key in LIP_OUTPUTS):
+            run.problem(None, f"accepted step {i} differs from a replay without the "
+                              f"refused steps: {now} against {then}")
+            break
+    sim.release()
 
 
 def static_equilibrium(case, sim):

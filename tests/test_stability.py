@@ -259,6 +259,27 @@ def test_a_refused_step_that_changes_the_state_is_caught(monkeypatch):
     assert any("refused step changed the state" in p for p in run.problems)
 
 
+def test_a_refusal_that_leaves_a_hidden_trace_is_caught(monkeypatch):
+    # the refused step leaves u, v, t and the activations as they were, but marks the
+    # instance: later outputs move by 1e-9 mm, which only the replay can see
+    step, outputs = Simulation.step, Simulation.outputs
+
+    def marking_step(self, t_end):
+        stats = step(self, t_end)
+        if not stats.converged:
+            self.trace = 1e-9
+        return stats
+
+    def traced_outputs(self):
+        out = outputs(self)
+        return {**out, "lip_aperture": out["lip_aperture"] + getattr(self, "trace", 0.0)}
+    monkeypatch.setattr(Simulation, "step", marking_step)
+    monkeypatch.setattr(Simulation, "outputs", traced_outputs)
+    run = S.run_case(QUICK["refusal"], probe=False)
+    assert run.refused == [1]
+    assert any("differs from a replay without the refused steps" in p for p in run.problems)
+
+
 def test_halved_scene_halves_the_substep_controls():
     scene = S.halved(QUICK["bang_bang_20hz"].scene)
     from solver.scene import Scene, parse_scene
