@@ -167,6 +167,29 @@ def test_centred_triangles_stay_within_a_share_of_a_warped_quads_face(divisions,
     assert deviation(split) == pytest.approx(warp / 2, rel=1e-3)
 
 
+def test_an_ansys_faces_lip_facets_become_the_faces_of_its_bricks():
+    """The facets of an ANSYS lip surface split brick faces along a diagonal; the reader
+    pairs them back into the brick faces (in the triangles' winding), so that the lip
+    contact follows the bilinear faces (see the test above). A facet that splits no brick
+    face, or whose partner is wound the other way, stays a triangle (a, b, c, c)."""
+    from solver.anatomy.ansys import _brick_faces
+    mesh = box(2, 1, 1)
+    top = [int(i) for i in mesh.node_sets["zmax"]]
+    x = mesh.nodes
+    quad = sorted(top, key=lambda i: (x[i, 0], x[i, 1]))[:4]          # the left brick's top
+    a, b, c, d = quad[0], quad[2], quad[3], quad[1]                  # counter-clockwise from +z
+    right = [i for i in top if i not in quad]
+    e = right[0]
+    tris = np.array([[a, b, c], [a, c, d],               # one brick face, either diagonal
+                     [b, e, c],                           # a facet of no brick face
+                     [d, c, right[1]]])
+    faces = _brick_faces(tris, mesh)
+    assert faces.tolist()[0] in ([a, b, c, d], [b, c, d, a], [c, d, a, b], [d, a, b, c])
+    assert faces.tolist()[1:] == [[b, e, c, c], [d, c, right[1], right[1]]]
+    flipped = _brick_faces(np.array([[a, b, c], [a, d, c]]), mesh)    # inconsistent winding
+    assert flipped.tolist() == [[a, b, c, c], [a, d, c, c]]
+
+
 def test_subdivided_faces_share_their_edge_midpoints():
     """Two quads and a triangle (a degenerate quad) sharing edges, at divisions 2: one
     midpoint vertex per shared edge, so that the only free edges are the outline's (16 +

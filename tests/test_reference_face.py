@@ -138,11 +138,17 @@ def test_insertions(face):
 
 def test_lip_contact_surfaces(face):
     nodes = face.mesh.nodes
-    for name, n_faces in (("upper_lip", 1280), ("lower_lip", 1036)):
+    local = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+    brick_faces = {tuple(sorted(f)) for f in face.mesh.bricks[:, local].reshape(-1, 4).tolist()}
+    for name, n_faces in (("upper_lip", 640), ("lower_lip", 518)):
         faces = face.contact_surfaces[name]
-        assert faces.shape == (n_faces, 3)
-        edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        # the file's 1280 and 1036 triangles, paired into the brick faces they split
+        assert faces.shape == (n_faces, 4)
+        assert all(tuple(sorted(f)) in brick_faces for f in faces.tolist())
+        edges = np.sort(faces[:, [0, 1, 1, 2, 2, 3, 3, 0]].reshape(-1, 2), axis=1)
         assert (np.unique(edges, axis=0, return_counts=True)[1] == 2).all()   # closed
+        directed = {tuple(e) for e in faces[:, [0, 1, 1, 2, 2, 3, 3, 0]].reshape(-1, 2).tolist()}
+        assert all((b, a) in directed for a, b in directed)        # consistently wound
         assert np.linalg.norm(nodes[edges[:, 0]] - nodes[edges[:, 1]], axis=1).mean() < 4.0
 
 

@@ -141,7 +141,7 @@ def load_ansys_face(folder):
     if not folder.is_dir():
         raise FaceFMUError(f"ANSYS face folder not found: {folder}")
     mesh = _read_mesh(folder)
-    contact = {k: _read_facets(_required(folder, f), mesh.node_ids)
+    contact = {k: _brick_faces(_read_facets(_required(folder, f), mesh.node_ids), mesh)
                for k, f in LIP_FILES.items()}
     fibres = _read_fibres(folder, mesh, contact)
     rigid = {k: _read_obj(folder / f) for k, f in TEETH_FILES.items() if (folder / f).is_file()}
@@ -523,6 +523,43 @@ def _read_facets(path, node_ids):
         raise MeshFileError(path, None, "no facets")
     tris, rows = _fans(faces)
     return _indices(path, np.array(numbers)[rows], node_ids, tris, NODE_FILE)
+
+
+def _brick_faces(tris, mesh):
+    """The lip surface (t, 3) as the bricks' own faces: (f, 4) quads, in the winding of
+    their triangles, where two triangles split a face of a brick; a triangle that does
+    not is kept as a degenerate quad (a, b, c, c).
+
+    Why: the facets split each brick face along a diagonal, but the tissue's surface is
+    the brick's bilinear face, which a warped quad bulges out of either triangle by up
+    to half its warp. Contact on the triangles lets a node rest inside the other lip's
+    bricks by that much; on the quads, solver.terms.contact.centred_triangles follows
+    the bilinear face."""
+    local = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6],
+                      [3, 0, 4, 7]])
+    faces = mesh.bricks[:, local].reshape(-1, 4)
+    faces = faces[np.array([len(set(f)) == 4 for f in faces], dtype=bool)]
+    index = {tuple(sorted(t)): i for i, t in enumerate(tris.tolist())}
+    partner = -np.ones(len(tris), dtype=np.int64)
+    for f in faces.tolist():
+        for a, b, c, d in ((0, 1, 2, 3), (1, 2, 3, 0)):        # the two diagonals a-c
+            i = index.get(tuple(sorted((f[a], f[b], f[c]))))
+            j = index.get(tuple(sorted((f[a], f[c], f[d]))))
+            if i is not None and j is not None and partner[i] < 0 and partner[j] < 0:
+                partner[i], partner[j] = j, i
+                break
+    out = []
+    for i, t in enumerate(tris.tolist()):
+        j = partner[i]
+        w = tris[j].tolist()[::-1] if j >= 0 else []
+        shared = [k for k in range(3) if (t[k], t[(k + 1) % 3]) in
+                  {(w[m], w[(m + 1) % 3]) for m in range(len(w))}]
+        if not shared:                      # no partner, or one wound the other way
+            out.append(t + [t[2]])
+        elif i < j:                         # the shared edge t[k] -> t[k + 1] reversed in w
+            k = shared[0]
+            out.append(t[:k + 1] + [next(v for v in w if v not in t)] + t[k + 1:])
+    return np.array(out, dtype=np.int64).reshape(-1, 4)
 
 
 def _fans(polygons):
