@@ -36,6 +36,8 @@ Required:
                                closed, outward-oriented surfaces around the lips; read as
                                0-based indices their edges would reach 90 mm. (Its ids are
                                1..n, so "1-based index" and "node id" agree there.)
+                               Two facets that split a brick face become that face
+                               (_brick_faces: the contact then follows its bilinear shape).
 Optional (left out of the anatomy when absent):
     maxilla_lipcontact.obj,    rigid teeth and gums under the upper and lower lips, Wavefront
     mandible_lipcontact.obj    OBJ (polygons are split into fans of triangles)
