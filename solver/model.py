@@ -164,9 +164,18 @@ class Model:
             self._system = System(self.terms, self.mesh.n_nodes, list(self._target))
         return self._system
 
-    def solve_static(self, steps=1, max_cutbacks=10, options=None, min_increment=1e-6):
+    def solve_static(self, steps=1, max_cutbacks=10, options=None, min_increment=1e-6,
+                     max_steps=200):
         """Load-stepped Newton from the current state to the current targets; a
-        StaticResult (converged False and a reason when the load could not be reached)."""
+        StaticResult (converged False and a reason when the load could not be reached).
+
+        The load increment halves after a failed step and grows by half after a step of
+        at most 4 iterations. max_steps bounds the load steps tried: past a limit point,
+        or where the contact's active set cycles, the steps shrink until each converges
+        in a few iterations but no longer grow, and the load crawls (thousands of steps
+        of 3e-4); such a solve is failed with the state restored, for a caller that can
+        reach the equilibrium another way (solver.face.FaceModel.solve_static relaxes
+        it)."""
         opts = options or self.newton_options
         sysm = self.system()
         self.linear_solver.invalidate()     # Newton's reuse starts afresh: solves repeat exactly
@@ -179,6 +188,12 @@ class Model:
         res = StaticResult(self.u.copy(), False, 0, 0)
         run_of_cuts = 0
         while lam < 1.0:
+            if len(res.steps) >= max_steps:
+                sysm.lam = 0.0
+                sysm.restore(u_start)
+                res.reason = (f"load stepping crawls: lam = {lam:.4g} after "
+                              f"{len(res.steps)} load steps (at most {max_steps})")
+                return res
             lam_try = min(1.0, lam + dlam)
             sysm.lam = lam_try
             targets = self.path_targets(pres, p_start, p_target, lam_try)

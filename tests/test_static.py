@@ -170,6 +170,23 @@ def test_a_load_step_that_creeps_on_in_ever_smaller_steps_fails_with_a_reason(mo
     assert np.array_equal(model.u, before)
 
 
+def test_a_load_stepping_that_crawls_is_failed_with_the_state_restored():
+    """A large bending of a soft block takes tens of load steps; bounded to fewer, the
+    solve fails naming the crawl, with the displacements as they were."""
+    mesh = box(2, 2, 4, (2.0, 2.0, 8.0))
+    model = solver.Model(mesh)
+    model.fix(mesh.node_sets["zmin"])
+    model.add_force(mesh.node_sets["zmax"], (1e-4, 0.0, -2e-4))
+    before = model.u.copy()
+    res = model.solve_static(max_steps=8)
+    assert not res.converged and "load stepping crawls" in res.reason, res.reason
+    assert len(res.steps) == 8
+    assert np.array_equal(model.u, before)
+    res = model.solve_static()                       # the default bound lets it through
+    assert res.converged and len(res.steps) > 8
+    assert np.abs(model.u).max() > 5.0
+
+
 def test_damped_relaxation_reaches_the_load_stepped_equilibrium():
     """Where load-stepped Newton converges, the damped relaxation (solver.transient.relax)
     ends at the same equilibrium, to Newton's tolerance, and leaves no damping term."""
