@@ -38,9 +38,9 @@ def realtime_model(scene="speech"):
     """The cached realtime model file of a scene (built-in name or TOML path); SystemExit
     naming the training command when there is none."""
     sys.path.insert(0, str(ROOT))
-    from solver.fidelity import apply_fidelity
+    from solver.app.fidelity import apply_fidelity
     from solver.rom.store import model_path
-    from solver.simulation import resolve_scene
+    from solver.app.simulation import resolve_scene
     path = model_path(apply_fidelity(resolve_scene(scene), "realtime"))
     if not path.is_file():
         raise SystemExit(f"no trained realtime model of scene {scene!r} at {path}; train "

@@ -28,7 +28,7 @@ Runs (each an independent task of solver.sweep; the default sweep):
 * the full face and stiffening off on the medium level; formulation "full" on the coarse
   and the medium half face. (No full-face, TIGHT or stiffening-off run of the coarse
   level: the medium level's show those effects, and the sweep keeps within 30 minutes.)
-* the fidelity presets of solver.fidelity (a run is added for a preset no row matches;
+* the fidelity presets of solver.app.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
 * the `balanced` preset at substep error tolerances 1e-2, 2e-2 and 3e-2 mm, and `fast`
   at 1e-2 mm, the rest of each preset as it is (labels "balanced at substep_tol 0.01"
@@ -92,7 +92,7 @@ if __package__ in (None, ""):                     # run as a script: the reposit
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from solver.sweep import Sweep  # noqa: E402
 from benchmarks.table import report  # noqa: E402
-from solver.terms.contact import PENALTY  # noqa: E402
+from solver.face.terms.contact import PENALTY  # noqa: E402
 
 REFERENCE_FACE = Path(os.environ.get(
     "FACEFMU_REFERENCE_FACE",
@@ -112,11 +112,11 @@ QUICK_DURATION = 0.05      # s
 
 
 def gesture(duration=GESTURE_DURATION, contact=True):
-    """The benchmark scene, as a dict for solver.scene.parse_scene: the built-in scene
-    `open_round` (solver/scenes/open_round.toml; the realtime model of the sweep is trained
+    """The benchmark scene, as a dict for solver.app.scene.parse_scene: the built-in scene
+    `open_round` (solver/app/scenes/open_round.toml; the realtime model of the sweep is trained
     on it) over `duration` s."""
     import tomllib
-    from solver.simulation import BUILTIN_DIR
+    from solver.app.simulation import BUILTIN_DIR
 
     with open(BUILTIN_DIR / "open_round.toml", "rb") as fh:
         data = tomllib.load(fh)
@@ -132,7 +132,7 @@ def knob(row, key):
 
 def with_rows(knobs):
     """knobs with rows written out: a generic face's rows None is its level's own."""
-    from solver.anatomy.generic import LEVELS as MESHES
+    from solver.face.anatomy.generic import LEVELS as MESHES
 
     if knobs["anatomy"] == "generic" and knobs.get("rows") is None:
         return {**knobs, "rows": MESHES[knobs["level"]][1]}
@@ -192,8 +192,8 @@ def select(specs, labels, available=()):
 
 def realtime_spec(ref):
     """The reduced-order fidelity `realtime` (solver.rom) on the gesture: its full-order
-    knobs (solver.fidelity.REDUCED) and the model trained on the scene open_round."""
-    from solver.fidelity import REDUCED
+    knobs (solver.app.fidelity.REDUCED) and the model trained on the scene open_round."""
+    from solver.app.fidelity import REDUCED
 
     return spec("realtime", ref, fidelity="realtime", **REDUCED["realtime"])
 
@@ -202,8 +202,8 @@ def realtime_model_missing(specs, duration):
     """Drop the realtime run from specs when no model of the gesture is trained (printing
     the training command); the specs left."""
     from solver.rom.store import ModelNotTrained, find_model
-    from solver.scene import parse_scene
-    from solver.fidelity import apply_fidelity
+    from solver.app.scene import parse_scene
+    from solver.app.fidelity import apply_fidelity
 
     if not any(s.get("fidelity") == "realtime" for s in specs):
         return specs
@@ -219,8 +219,8 @@ def realtime_model_missing(specs, duration):
 def tolerance_specs(ref):
     """The `balanced` and `fast` presets at tighter substep error tolerances than their own
     (the rest of each preset as it is): what the preset's substep tolerance costs in error
-    and saves in time (solver/fidelity.py, docs/accuracy.md)."""
-    from solver.fidelity import PRESETS
+    and saves in time (solver/app/fidelity.py, docs/accuracy.md)."""
+    from solver.app.fidelity import PRESETS
 
     out = []
     for name, tols in (("balanced", (1e-2, 2e-2, 3e-2)), ("fast", (1e-2,))):
@@ -233,7 +233,7 @@ def tolerance_specs(ref):
 def preset_specs(runs, ref):
     """Runs of the fidelity presets that no run in runs matches (their knobs, DEFAULT
     elsewhere); none where a preset asks for a level finer than the reference's."""
-    from solver.fidelity import FIDELITIES, PRESETS
+    from solver.app.fidelity import FIDELITIES, PRESETS
 
     out = []
     ref_level = next(r["level"] for r in runs if r["label"] == ref)
@@ -313,7 +313,7 @@ def mark_front(table, cost="wall_s"):
 
 def mark_presets(table):
     """Set row["preset"] on the generic-face rows whose knobs are a fidelity preset's."""
-    from solver.fidelity import FIDELITIES, PRESETS
+    from solver.app.fidelity import FIDELITIES, PRESETS
 
     for r in table:                   # the current presets (also on a --replot of a table)
         r["preset"] = r.get("fidelity", "")             # "realtime": the reduced model

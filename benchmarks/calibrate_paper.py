@@ -5,9 +5,9 @@ face reproduces the paper's Table 4.
 
 The paper drives its cables by a virtual temperature drop with unstated constants, and does
 not give its activation stiffening factor; Table 4 (OOP's largest compressive strain over
-a 0.1 s ramp, solver.paper.TABLE4) is the measurement they are identified from.
+a 0.1 s ramp, solver.validation.paper.TABLE4) is the measurement they are identified from.
 
-Parameters (solver.muscles.calibrated), the same for all ten muscles:
+Parameters (solver.face.muscles.calibrated), the same for all ten muscles:
 * sigma_max (MPa): peak force per fibre F_max = sigma_max pi r^2, r the muscle's radius;
 * eps_contraction: the cable's slack strain at full activation (the force falls linearly
   from F_max at the rest length to 0 at a shortening of a eps_c);
@@ -16,16 +16,16 @@ Those named by --free are fitted (default: sigma_max and stiffening_max), the ot
 at --start (default eps_c = 1: at full activation the cable's force falls linearly from
 F_max at its rest length to 0 at zero length).
 Objective: the residuals ours - paper at the paper's nine rows, ours from
-solver.paper.table4_run on the reference face (half), scene table4_oop (with --fidelity:
+solver.validation.paper.table4_run on the reference face (half), scene table4_oop (with --fidelity:
 that preset's solver tolerances).
 Method: scipy.optimize.least_squares (trust region reflective) over the logarithms of the
 free parameters, within --lower and --upper, forward differences of relative step
 --diff-step. Every evaluation is kept in out/calibrate_paper_evaluations.json, so a run
 that stops resumes where it was.
 
-Writes solver/data/paper_calibration.json: the constants, the objective and its value,
+Writes solver/face/data/paper_calibration.json: the constants, the objective and its value,
 the rows (ours and the paper's), the largest row error, every evaluation, the command, the
-commit and the date. Exit status 0 when every row is within solver.paper.TABLE4_TOLERANCE.
+commit and the date. Exit status 0 when every row is within solver.validation.paper.TABLE4_TOLERANCE.
 """
 
 import argparse
@@ -38,11 +38,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from solver.anatomy.load import load_anatomy
-from solver.fidelity import fidelity_overrides
-from solver.muscles import PAPER_FILE, calibrated
-from solver.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
-from solver.provenance import command, commit
+from solver.face.anatomy.load import load_anatomy
+from solver.app.fidelity import fidelity_overrides
+from solver.face.muscles import PAPER_FILE, calibrated
+from solver.validation.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
+from solver.app.provenance import command, commit
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",

@@ -11,7 +11,7 @@ protrusion (mm) against the full run.
 import argparse
 import time
 
-from solver.simulation import Simulation, resolve_scene
+from solver.app.simulation import Simulation, resolve_scene
 from table import report
 
 SWITCHES = {"inertia": "inertia", "damping": "damping", "stiffening": "stiffening",

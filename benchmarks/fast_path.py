@@ -4,9 +4,9 @@
                                    [--linear-solver auto|pardiso|superlu] [--profile]
                                    [--md FILE]
 
-Scene (solver.gestures.gesture): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s,
+Scene (solver.app.gestures.gesture): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s,
 held to 0.3 s, lip and teeth contact on, lip aperture and protrusion recorded every 10 ms,
-at the `balanced` fidelity preset's tolerances (solver.fidelity.STEP_LOOSE: substep error
+at the `balanced` fidelity preset's tolerances (solver.app.fidelity.STEP_LOOSE: substep error
 5e-2 mm, substeps up to 5 ms, Newton 1e-4 on the residual and 1e-2 mm on the last update)
 on
 
@@ -18,7 +18,7 @@ on
 Each case runs with each path (build time apart, the numba kernels compiled beforehand):
 
     old  full Newton: a factorization at every iteration, predictor u_n + h v_n with a
-         second try from u_n (solver.transient)
+         second try from u_n (solver.core.transient)
     new  the defaults: factorization reuse (NewtonOptions.reuse, refactor_ratio) and
          the integrator's warm start (Transient.predictor)
 
@@ -40,8 +40,8 @@ single precision where it installs; the FMU takes SuperLU). --md FILE writes the
 markdown too.
 
 Experiments (docs/dev-notes/fast_path.md): ``--set KEY=VALUE`` (repeatable) changes one knob of
-every run: ``transient.X`` an attribute of solver.transient.Transient (tol, max_substep,
-fixed_step, predictor), ``newton.X`` a field of solver.newton.NewtonOptions (rtol, utol,
+every run: ``transient.X`` an attribute of solver.core.transient.Transient (tol, max_substep,
+fixed_step, predictor), ``newton.X`` a field of solver.core.newton.NewtonOptions (rtol, utol,
 refactor_ratio, contact_update), ``contact.X`` an attribute of each contact term (smoothing,
 penalty), ``lips.X`` and ``teeth.X`` of the lip or the teeth terms only, ``damping.X`` of the
 damping term (refresh); ``--contact both|teeth|lips|none`` the
@@ -63,7 +63,7 @@ from pathlib import Path
 if __package__ in (None, ""):                     # run as a script: the repository root
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.table import report  # noqa: E402
-from solver.gestures import gesture  # noqa: E402
+from solver.app.gestures import gesture  # noqa: E402
 
 REFERENCE_FACE = Path(os.environ.get(
     "FACEFMU_REFERENCE_FACE",
@@ -81,8 +81,8 @@ PATHS = {"old": {"newton": dict(reuse=False), "transient": {}},
 def build(case, duration, path, linear_solver="auto", knobs=(), contact="both"):
     """A Simulation of the gesture for case 'a' | 'b', set up for path 'old' | 'new', with
     the knobs [(KEY, value)] of --set applied last."""
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     sim = Simulation(parse_scene(gesture(duration, contact)), linear_solver=linear_solver,
                      **CASES[case])
     opts = PATHS[path]
@@ -134,7 +134,7 @@ def probe(n=26, reps=3):
     time of a run, whose wall time drifts with it (docs/dev-notes/fast_path.md)."""
     import numpy as np
     import scipy.sparse as sp
-    from solver.linsolve import available, make_solver
+    from solver.core.linsolve import available, make_solver
     if "pardiso-single" not in available():
         return float("nan")
     d = sp.diags([-np.ones(n - 1), 2.0 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
@@ -205,8 +205,8 @@ def max_diff(rows, ref, key):
 
 def warm_up():
     """Compile (or load) the numba kernels outside the timings: a few steps, coarse face."""
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     sim = Simulation(parse_scene(gesture(0.02)), level="coarse", half=True)
     sim.run()
     sim.release()

@@ -11,7 +11,7 @@ FaceFMU (built once by build_fmu.py) runs the default scene at --fidelity throug
 fresh processes of --batch seeds each, --jobs of them at a time. A seed passes when every
 doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, the state
 serialized at the end has no lip node inside the other lip and none behind the teeth by
-more than the contact tolerance (solver.stability.Probe, outside the model), and its
+more than the contact tolerance (solver.validation.stability.Probe, outside the model), and its
 process exits with status 0.
 Prints one line per seed and the failing seeds; rerun one with --seeds S; --doc writes
 the same as a markdown report (the command, commit, date and wall time in its header):
@@ -106,7 +106,7 @@ def probe_for(fidelity):
     """The penetration probe of the FMU's default model at this fidelity."""
     sys.path.insert(0, str(ROOT))
     from solver.entry import open_simulation
-    from solver.stability import Probe
+    from solver.validation.stability import Probe
     sim = open_simulation("default", fidelity=fidelity or None)
     return Probe(sim.anatomy)
 
@@ -128,7 +128,7 @@ def main(argv=None):
     ap.add_argument("--keep", help="build into and keep this folder")
     ap.add_argument("--doc", help="write a markdown report there")
     args = ap.parse_args(argv)
-    from solver.stability import CONTACT_TOLERANCE
+    from solver.validation.stability import CONTACT_TOLERANCE
     todo = seeds(args.seeds)
     tmp = None if args.keep else tempfile.TemporaryDirectory(prefix="fmu-campaign-")
     base = Path(args.keep or tmp.name)
@@ -199,7 +199,7 @@ def write_doc(args, argv, todo, rows, failed, wall, tolerance):
     import datetime
     import platform
     sys.path.insert(0, str(ROOT))
-    from solver.provenance import commit
+    from solver.app.provenance import commit
     command = "python benchmarks/fmu_campaign.py " + " ".join(argv or sys.argv[1:])
     lines = ["# Randomized campaign through the FMU", "",
              f"Made by `{command.strip()}` at commit {commit()} on "

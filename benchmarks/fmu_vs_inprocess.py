@@ -37,7 +37,7 @@ n = int(round(duration / step))
 rows = []
 if mode == "inprocess":
     from solver.entry import open_simulation
-    from solver.simulation import resolve_scene
+    from solver.app.simulation import resolve_scene
     scene = resolve_scene(scene_name)
     sim = open_simulation(scene_name, anatomy=anatomy, fidelity=fidelity or None)
     t0 = time.perf_counter()
@@ -109,7 +109,7 @@ print(json.dumps({"wall_s": wall, "rows": rows}), flush=True)
 def schedule(scene_name, duration):
     """{muscle: (times, values)} of the scene's (ramp or piecewise-linear) schedules."""
     sys.path.insert(0, str(ROOT))
-    from solver.simulation import resolve_scene
+    from solver.app.simulation import resolve_scene
     scene = resolve_scene(scene_name)
     times = sorted({0.0, duration, *[t for s in scene.schedules for t in s.times
                                      if t < duration]})
@@ -172,7 +172,7 @@ def main(argv=None):
                 say(f"{anatomy:10s}{mode:11s}{res['wall_s']:10.2f}"
                     f"{res['wall_s'] / base['wall_s']:8.2f}{diff:15.2e}{res['exit']:6d}")
     if args.out:
-        from solver.provenance import commit as git_commit
+        from solver.app.provenance import commit as git_commit
         commit = git_commit()
         command = "python benchmarks/fmu_vs_inprocess.py " + " ".join(argv or sys.argv[1:])
         Path(args.out).write_text(

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.simulation import Simulation, resolve_scene
-from solver.provenance import commit as git_commit
+from solver.app.simulation import Simulation, resolve_scene
+from solver.app.provenance import commit as git_commit
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,8 +1,8 @@
-"""The table of the fidelity presets: docs/presets.md, from solver.fidelity.
+"""The table of the fidelity presets: docs/presets.md, from solver.app.fidelity.
 
     python benchmarks/presets_table.py [--out docs/presets.md]
 
-Writes a markdown table of every preset's fields (solver.fidelity.PRESETS) and of the
+Writes a markdown table of every preset's fields (solver.app.fidelity.PRESETS) and of the
 full-order knobs of the reduced-order fidelity `realtime` (REDUCED), with the command that
 made it. Runs nothing: the values are the module's constants.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 if __package__ in (None, ""):                     # run as a script: the repository root
     sys.path.insert(0, str(ROOT))
-from solver.fidelity import PRESETS, REDUCED  # noqa: E402
+from solver.app.fidelity import PRESETS, REDUCED  # noqa: E402
 
 COMMAND = "python benchmarks/presets_table.py"
 # field -> (unit, meaning), in table order; a field not listed here is tabulated after them
@@ -46,7 +46,7 @@ def presets_markdown():
                **{f"`{n}` (full-order knobs)": v for n, v in REDUCED.items()}}
     fields = list(FIELDS) + sorted({f for v in columns.values() for f in v} - set(FIELDS))
     lines = ["# Fidelity presets", "",
-             f"Written by `{COMMAND}` from `solver/fidelity.py` (PRESETS, REDUCED): the "
+             f"Written by `{COMMAND}` from `solver/app/fidelity.py` (PRESETS, REDUCED): the "
              "scene fields each fidelity sets; a field it does not set stays the scene's. "
              "An ANSYS face keeps its own mesh: `level` and `rows` do not apply to it. "
              "`realtime` is the reduced-order model ([realtime.md](realtime.md)); its column "

@@ -139,7 +139,7 @@ def main(argv=None):
     from solver.rom.accuracy import GESTURES
     from solver.rom.train import drive
     from solver.entry import open_simulation
-    from solver.simulation import Simulation
+    from solver.app.simulation import Simulation
     duration, schedules = GESTURES[args.gesture]
     print(f"load average before: {' '.join(f'{x:.2f}' for x in load())} "
           f"({os.cpu_count()} CPUs)")

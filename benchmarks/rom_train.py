@@ -7,9 +7,9 @@
     python benchmarks/rom_train.py --accuracy [--scene SCENE] [--model FILE.npz]
                                    [--gestures oop_ris,open,open_round] [--md FILE]
 
-SCENE: a built-in scene or a TOML file; the default, `speech` (solver/scenes/speech.toml),
+SCENE: a built-in scene or a TOML file; the default, `speech` (solver/app/scenes/speech.toml),
 drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
-scene's full-order model at the realtime knobs (solver.fidelity.REDUCED: coarse generic
+scene's full-order model at the realtime knobs (solver.app.fidelity.REDUCED: coarse generic
 half face) and cached in the user cache (solver.rom.store; the path is printed), where
 `open_simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
 a dask LocalCluster (solver.sweep.Sweep, `--workers` one-thread processes) or a
@@ -31,8 +31,8 @@ from benchmarks.table import report  # noqa: E402
 def load(name):
     """The scene `name` (built-in or TOML file) at the realtime knobs (the full-order
     model the reduced one is trained on)."""
-    from solver.fidelity import apply_fidelity
-    from solver.simulation import resolve_scene
+    from solver.app.fidelity import apply_fidelity
+    from solver.app.simulation import resolve_scene
     return apply_fidelity(resolve_scene(name).with_overrides(fidelity=""), "realtime")
 
 
@@ -53,7 +53,7 @@ def train_main(args):
 def accuracy_main(args):
     from solver.rom.accuracy import GESTURES, compare
     from solver.entry import open_simulation
-    from solver.simulation import Simulation
+    from solver.app.simulation import Simulation
     scene = load(args.scene)
     rom = open_simulation(scene, fidelity="realtime", rom_model=args.model,
                           check_every=args.check_every)

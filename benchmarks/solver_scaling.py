@@ -16,8 +16,8 @@ import time
 import numpy as np
 
 import solver
-from solver.linsolve import available, make_solver
-from solver.meshgen import box
+from solver.core.linsolve import available, make_solver
+from solver.core.meshgen import box
 from table import report
 
 
@@ -75,7 +75,7 @@ def case(n, repeat):
 def face_case(repeat):
     """Factorize + solve the reference face's tangent (all muscles, OOP at 0.5)."""
     from pathlib import Path
-    from solver.anatomy.load import load_anatomy
+    from solver.face.anatomy.load import load_anatomy
     folder = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference-face"
     if not folder.is_dir():
         print(f"(no reference face at {folder}: face case skipped)")

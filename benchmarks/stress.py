@@ -1,4 +1,4 @@
-"""The stress run: every hard case of solver/stability.py, its invariants, the step-halving
+"""The stress run: every hard case of solver/validation/stability.py, its invariants, the step-halving
 convergence check and (--fmu) the same cases through the built FMU with fmpy; a table.
 
     python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
@@ -10,7 +10,7 @@ With no options it runs every full case in process and through the FMU and rewri
 docs/stability.md whole (commit, date, wall time, the table, the failures). --quick runs
 the CI versions of the cases; --cases a subset; --no-fmu skips the FMU rows; these write
 the report to OUT only, unless --doc names a file. --anatomy, --level and --fidelity run
-every case on another configuration (solver.stability.configured: the reference face, the
+every case on another configuration (solver.validation.stability.configured: the reference face, the
 generic face's paper level, a preset's mesh and tolerances); its rows are named
 CASE@CONFIGURATION. --config runs the cases on several named configurations in one report
 (CONFIGURATIONS below; `--config all`: every one):
@@ -43,12 +43,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from solver import stability as S  # noqa: E402
-from solver.scene import parse_scene  # noqa: E402
-from solver.provenance import commit  # noqa: E402
+from solver.validation import stability as S  # noqa: E402
+from solver.app.scene import parse_scene  # noqa: E402
+from solver.app.provenance import commit  # noqa: E402
 from table import report  # noqa: E402
 
-# the configurations of --config: (anatomy, level, fidelity) for solver.stability.configured;
+# the configurations of --config: (anatomy, level, fidelity) for solver.validation.stability.configured;
 # "coarse" is the cases' own (the coarse generic half face at the scene's tolerances)
 CONFIGURATIONS = {"coarse": ("generic", None, None), "paper": ("generic", "paper", None),
                   "reference": ("reference", None, None),
@@ -117,7 +117,7 @@ def build_fmu(dest):
 
 
 def run_fmu(selected, runs, out, notes, fmu=None):
-    from solver.simulation import Simulation
+    from solver.app.simulation import Simulation
     fmu = Path(fmu) if fmu else build_fmu(out / "fmu")
     bounds = S.output_bounds(Simulation(parse_scene(selected[0].scene)).anatomy)
     rows, problems = [], {}
@@ -171,7 +171,7 @@ def markdown(rows, command, notes, problems, wall):
              f"{datetime.date.today().isoformat()}, {platform.machine()} "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
-             "had other work). Cases and checks: `solver/stability.py`; "
+             "had other work). Cases and checks: `solver/validation/stability.py`; "
              "the quick versions run in CI (`tests/test_stability.py`).", "",
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "
              "the smallest over all steps); lip outputs within bounds (aperture >= 0); "
@@ -215,7 +215,7 @@ def main(argv=None):
     ap.add_argument("--anatomy", default="generic",
                     help="generic, reference (../shared/data/reference-face) or a folder")
     ap.add_argument("--level", help="the generic face's level (coarse, medium, paper, fine)")
-    ap.add_argument("--fidelity", help="a preset of solver.fidelity (fast, balanced, "
+    ap.add_argument("--fidelity", help="a preset of solver.app.fidelity (fast, balanced, "
                     "accurate)")
     ap.add_argument("--config", nargs="+", choices=[*CONFIGURATIONS, "all"],
                     help="named configurations, one report (overrides --anatomy, --level "

@@ -27,7 +27,7 @@ if __package__ in (None, ""):                     # run as a script: the reposit
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.fast_path import REFERENCE_FACE, build, warm_up  # noqa: E402
-from solver.assembly import Assembly  # noqa: E402
+from solver.core.assembly import Assembly  # noqa: E402
 
 SIZES = (1e-3, 1e-4, 1e-5)                         # mm per DOF
 

@@ -6,7 +6,7 @@ For the generic face and, where its folder is found (../shared/data/reference-fa
 $FACEFMU_REFERENCE_FACE), the reference face, both at the `balanced` preset with the
 default scene's contact: opens the jaw to the given incisor opening over 50 ms (then
 holds it 50 ms), all muscles at rest, and draws the face with its teeth at rest and
-open (solver.plot), to OUT/jaw_<anatomy>_rest.png and OUT/jaw_<anatomy>_open.png. Prints
+open (solver.app.plot), to OUT/jaw_<anatomy>_rest.png and OUT/jaw_<anatomy>_open.png. Prints
 the lip aperture at rest and open.
 """
 
@@ -15,9 +15,9 @@ import math
 import os
 from pathlib import Path
 
-from solver.jaw import BONWILL_MM
-from solver.plot import plot_anatomy
-from solver.simulation import Simulation
+from solver.face.jaw import BONWILL_MM
+from solver.app.plot import plot_anatomy
+from solver.app.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",

@@ -8,7 +8,7 @@ Static equilibrium, half face (symmetric activations), the default muscle calibr
 activation stiffening on (the paper's whole-brick rule, effects.stiffening_rule =
 "intersect", as in its scenes), lip/lip and lip/teeth contact on (off with --no-contact).
 Where load-stepped Newton stops at a limit point (a folding lip) the damped relaxation
-finds the equilibrium (solver.transient.relax); a state where that fails too is
+finds the equilibrium (solver.core.transient.relax); a state where that fails too is
 printed with its reason and tabulated as nan. The reference face is used where
 ../shared/data/reference-face exists. Writes OUT/muscles.md and OUT/img/atlas_*.png.
 
@@ -25,12 +25,12 @@ import os
 import time
 from pathlib import Path
 
-from solver.anatomy.base import MUSCLE_NAMES
-from solver.anatomy.load import load_anatomy
-from solver.plot import plot_anatomy
-from solver.scene import parse_scene, Scene
-from solver.simulation import Simulation
-from solver.provenance import commit
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.face.anatomy.load import load_anatomy
+from solver.app.plot import plot_anatomy
+from solver.app.scene import parse_scene, Scene
+from solver.app.simulation import Simulation
+from solver.app.provenance import commit
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -86,7 +86,7 @@ def main(argv=None):
              f"Made by `python examples/muscle_atlas.py --level {args.level}"
              f"{' --no-contact' if not contact else ''}` at commit {commit()}: static "
              f"equilibrium, half face, muscle calibration `{Scene().calibration}` "
-             "(solver/muscles.py), "
+             "(solver/face/muscles.py), "
              f"stiffening on (the paper's whole-brick rule), lip/lip and lip/teeth contact "
              f"{'on' if contact else 'off'}. Lip measures in mm "
              "(change from rest for aperture and width; protrusion is the forward "

@@ -6,8 +6,8 @@
 OOP activated over 0.1 s (the built-in scene table4_oop: a ramp from a = 0 to 1,
 backward Euler with adaptive substeps, Rayleigh damping alpha = 40, beta = 0.03,
 stiffening, lip and teeth contact), half face; the largest compressive strain of the OOP
-region every 0.01 s, its rate and its average rate (solver.paper), under the
-`physiological` and the `paper` muscle calibrations (solver.muscles.calibrated), on the
+region every 0.01 s, its rate and its average rate (solver.validation.paper), under the
+`physiological` and the `paper` muscle calibrations (solver.face.muscles.calibrated), on the
 generic face at --level and on the reference face where ../shared/data/reference-face
 exists; then the generic face under `paper` at the --refine levels (is its difference
 from the paper the mesh's?). Writes OUT/table4.md and out/table4.csv.
@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.anatomy.load import load_anatomy
-from solver.muscles import CALIBRATIONS, calibrated, paper_calibration
-from solver.paper import TABLE4_AVG_RATE, TABLE4_TOLERANCE, paper_strain, row_errors, table4_run
-from solver.provenance import command, stamp
+from solver.face.anatomy.load import load_anatomy
+from solver.face.muscles import CALIBRATIONS, calibrated, paper_calibration
+from solver.validation.paper import (TABLE4_AVG_RATE, TABLE4_TOLERANCE, paper_strain,
+                                     row_errors, table4_run)
+from solver.app.provenance import command, stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -97,14 +98,14 @@ def main(argv=None):
              "the most compressive logarithmic principal strain over the paper's OOP region "
              "(the reference face's `OOP_elements.txt`; on the generic face, OOP's stiffening "
              "neighbourhood). The paper's first row covers 0 to 0.02 s.", "",
-             "Calibrations (`[muscles] calibration` of a scene; `solver/muscles.py`):", "",
+             "Calibrations (`[muscles] calibration` of a scene; `solver/face/muscles.py`):", "",
              "| calibration | sigma_max (MPa) | eps_contraction | stiffening_max |",
              "|---|---|---|---|"]
     lines += [f"| `{c}` | {v['sigma_max']:.4g} | {v['eps_contraction']:.4g} | "
               f"{v['stiffening_max']:.4g} |" for c, v in consts.items()]
     lines += ["", f"`paper` was identified by `{rec['command']}` at commit {rec['commit']} "
               f"({rec['method']}; objective: {rec['objective']}); its record is "
-              "`solver/data/paper_calibration.json`.", ""]
+              "`solver/face/data/paper_calibration.json`.", ""]
     all_rows = []
     for label, anatomy in faces.items():
         lines += [f"## {label}", ""]

@@ -7,7 +7,7 @@
                       [--anatomy SPEC] [--level L] [--full] [--vtu]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
-and a missing optional dependency (solver.extras: the message names the extra) print one
+and a missing optional dependency (solver.app.extras: the message names the extra) print one
 line to stderr naming the culprit and exit with status 2. A subcommand is an
 entry of COMMANDS: name -> (help, add_arguments(parser), run(args) -> exit status).
 """
@@ -15,11 +15,11 @@ entry of COMMANDS: name -> (help, add_arguments(parser), run(args) -> exit statu
 import argparse
 import sys
 
-from solver.anatomy.base import MUSCLE_NAMES
-from solver.anatomy.load import LEVELS, load_anatomy
-from solver.errors import FaceFMUError
-from solver.extras import MissingExtra
-from solver.fidelity import FIDELITIES, REDUCED
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.face.anatomy.load import LEVELS, load_anatomy
+from solver.core.errors import FaceFMUError
+from solver.app.extras import MissingExtra
+from solver.app.fidelity import FIDELITIES, REDUCED
 
 from . import run_scene
 
@@ -66,11 +66,11 @@ def _anatomy(args):
     anatomy = _load(args.spec, args.level, args.half)
     print(describe_anatomy(anatomy))
     if args.export:
-        from solver.io import export_anatomy
+        from solver.app.io import export_anatomy
         for path in export_anatomy(anatomy, args.export):
             print(f"wrote {path}")
     if args.png:
-        from solver.plot import plot_anatomy
+        from solver.app.plot import plot_anatomy
         print(f"wrote {plot_anatomy(anatomy, args.png)}")
     return 0
 
@@ -80,10 +80,10 @@ def _load(spec, level, half):
     try:
         return load_anatomy(spec, level=level, half=half)
     except ModuleNotFoundError as e:
-        if spec != "generic" or e.name != "solver.anatomy.generic":
+        if spec != "generic" or e.name != "solver.face.anatomy.generic":
             raise
         raise UserError("the generic face is not available in this installation "
-                        "(solver.anatomy.generic is missing)") from None
+                        "(solver.face.anatomy.generic is missing)") from None
 
 
 def describe_anatomy(anatomy):
@@ -141,8 +141,8 @@ def _run_arguments(parser):
 
 def _run(args):
     if args.fidelity:
-        from solver.fidelity import apply_fidelity
-        from solver.simulation import resolve_scene
+        from solver.app.fidelity import apply_fidelity
+        from solver.app.simulation import resolve_scene
         args.scene = apply_fidelity(resolve_scene(args.scene), args.fidelity)
         if args.fidelity in REDUCED:                 # the reduced model of that scene
             args.scene = args.scene.with_overrides(fidelity=args.fidelity)

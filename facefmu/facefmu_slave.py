@@ -1,5 +1,5 @@
 """FaceFMU: the FMI 2.0 co-simulation slave (pythonfmu). No physics here: it maps FMU
-variables to the simulation that solver.entry.open_simulation opens (solver.simulation.
+variables to the simulation that solver.entry.open_simulation opens (solver.app.simulation.
 Simulation, or solver.rom.simulation.ReducedSimulation at fidelity "realtime").
 
 What a master sees:
@@ -13,7 +13,7 @@ What a master sees:
   level) is logged as an error at exitInitializationMode, which then fails with fmi2Fatal
   (pythonfmu turns exceptions into fmi2Fatal); setting a parameter after initialization is
   logged as a warning and ignored.
-* fidelity: "balanced" (default) and the other presets of solver.fidelity (fast,
+* fidelity: "balanced" (default) and the other presets of solver.app.fidelity (fast,
   accurate) set the mesh level, half face, substep and Newton tolerances and the element
   formulation themselves: the parameters level, half_face, tolerance and max_substep are
   then not used, with a warning for each one the master set. "" runs the scene as its
@@ -37,9 +37,9 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Intege
 from pythonfmu.enums import Fmi2Status
 from pythonfmu.default_experiment import DefaultExperiment
 
-from solver.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
-from solver.fidelity import FIDELITIES, REDUCED, fidelity_overrides
-from solver.jaw import JAW_INPUTS, JAW_RANGES, JAW_UNITS
+from solver.face.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from solver.app.fidelity import FIDELITIES, REDUCED, fidelity_overrides
+from solver.face.jaw import JAW_INPUTS, JAW_RANGES, JAW_UNITS
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
@@ -174,7 +174,7 @@ class FaceFMU(Fmi2Slave):
         """open_simulation's keyword overrides: the parameters the master has set (a scene
         file's own values stand where it has not), and the fidelity's."""
         from solver.entry import is_reduced
-        from solver.simulation import resolve_scene
+        from solver.app.simulation import resolve_scene
         scene = resolve_scene(self.scene)
         if scene.fidelity and "fidelity" not in self._set:
             self.fidelity = scene.fidelity          # the scene file's own choice

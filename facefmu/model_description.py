@@ -8,7 +8,7 @@
 
 from xml.etree.ElementTree import Element, SubElement
 
-from solver.jaw import JAW_RANGES, JAW_UNITS
+from solver.face.jaw import JAW_RANGES, JAW_UNITS
 
 UNITS = {"mm": {"m": "1", "factor": "0.001"}, "s": {"s": "1"},
          "deg": {"rad": "1", "factor": "0.017453292519943295"},

@@ -10,10 +10,10 @@ are checked before the run.
 import csv
 from pathlib import Path
 
-from solver.anatomy.base import MUSCLE_NAMES
-from solver.extras import need
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.app.extras import need
 from solver.entry import open_simulation
-from solver.simulation import builtin_scenes
+from solver.app.simulation import builtin_scenes
 
 
 def add_arguments(parser):
@@ -54,7 +54,7 @@ def run(args):
 
     def on_record(s, row):
         if args.vtu:
-            from solver.io.export import export_anatomy
+            from solver.app.io.export import export_anatomy
             path = out / f"{name}_{len(frames):04d}.vtu"
             export_anatomy(s.anatomy, path, displacement=s.face.u)
             frames.append(path)
@@ -80,7 +80,7 @@ def run(args):
 def hold_jaw(scene, held):
     """The scene with its jaw schedules replaced by ramps to the held values (dict
     'opening' | 'protrusion' -> value) over its first output interval."""
-    from solver.scene import parse_scene_schedule
+    from solver.app.scene import parse_scene_schedule
     keep = tuple(s for s in scene.schedules if not s.muscle.startswith("jaw_"))
     ramps = tuple(parse_scene_schedule({"jaw": k, "kind": "ramp", "start": 0.0,
                                         "end": scene.interval, "to": v}, scene)

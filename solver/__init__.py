@@ -1,6 +1,6 @@
 """FaceFMU's standalone finite-element solver.
 
-Units everywhere: mm, N, MPa, s, tonne/mm^3 (see solver.units).
+Units everywhere: mm, N, MPa, s, tonne/mm^3 (see solver.core.units).
 
     import solver
     sim = solver.open_simulation("rounding_u", fidelity="balanced")   # a scene's run
@@ -12,18 +12,17 @@ Units everywhere: mm, N, MPa, s, tonne/mm^3 (see solver.units).
     res = model.solve_static()
 """
 
-from . import _cache  # noqa: F401  (numba cache directory, before any kernel compiles)
-from .entry import open_simulation
-from .errors import (FaceFMUError, MeshError, MeshFileError,
-                     ParameterError)
-from .face import FaceModel
-from .materials import MooneyRivlin
-from .mesh import Mesh
-from .model import Model, StaticResult
-from .newton import NewtonOptions
-from .rom.store import ModelNotTrained
-from .scene import Scene, SceneError, load_scene
-from .simulation import Simulation
+from solver.core import _cache  # noqa: F401  (numba cache directory, before any kernel compiles)
+from solver.entry import open_simulation
+from solver.core.errors import FaceFMUError, MeshError, MeshFileError, ParameterError
+from solver.face.face_model import FaceModel
+from solver.core.materials import MooneyRivlin
+from solver.core.mesh import Mesh
+from solver.core.model import Model, StaticResult
+from solver.core.newton import NewtonOptions
+from solver.rom.store import ModelNotTrained
+from solver.app.scene import Scene, SceneError, load_scene
+from solver.app.simulation import Simulation
 
 __version__ = "0.1.0"
 

@@ -10,7 +10,7 @@
 A task is a dict: a "label" and keyword arguments of solver.entry.open_simulation (Scene
 fields such as level, half, substep_tol; "fidelity" for a preset, or "realtime"; "anatomy"
 takes the path of an ANSYS face folder as the workers see it). The scene is a built-in name, a TOML path
-or a dict as solver.scene.parse_scene takes; it ships as plain data with every task. Each
+or a dict as solver.app.scene.parse_scene takes; it ships as plain data with every task. Each
 task runs in a worker process (`run_task`) and returns plain data with its own timing and
 peak memory. A task that raises, or whose worker dies, comes back with its error message
 instead of failing the sweep. A worker imports the simulation code with its first task;
@@ -43,7 +43,7 @@ import os
 import resource
 import time
 
-from .extras import need
+from solver.app.extras import need
 
 
 def _status_mb(key):
@@ -84,8 +84,8 @@ def run_task(task, scene="default", numba_threads=1):
     import numba
 
     from solver.entry import open_simulation
-    from solver.scene import parse_scene
-    from solver.simulation import resolve_scene
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import resolve_scene
 
     numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
     kwargs = {k: v for k, v in task.items() if k != "label"}

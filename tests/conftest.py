@@ -43,11 +43,11 @@ def trained(tmp_path_factory):
     model.npz and under its key's name in `folder` (for FACEFMU_ROM_DIR look-ups)."""
     import shutil as _shutil
 
-    from solver.fidelity import apply_fidelity
+    from solver.app.fidelity import apply_fidelity
     from solver.rom.store import load_model, model_path
     from solver.rom.train import collect, snapshot_tasks, train
-    from solver.scene import Scene
-    from solver.simulation import Simulation
+    from solver.app.scene import Scene
+    from solver.app.simulation import Simulation
     folder = tmp_path_factory.mktemp("rom")
     scene = apply_fidelity(Scene(name="rom_test", driven=ROM_DRIVEN, lip_contact=True,
                                  teeth_contact=True), "realtime")
@@ -69,14 +69,14 @@ REFERENCE_BALANCED = dict(substep_tol=1e-2, newton_rtol=1e-6, newton_utol=1e-4,
 
 
 def gesture_both_ways(option, duration, count):
-    """The lip gesture (solver.gestures) on the coarse half face (lip and teeth
+    """The lip gesture (solver.app.gestures) on the coarse half face (lip and teeth
     contact) for duration s, with NewtonOptions.option off and on: {on: (count(sim) after
     the run, the recorded rows)}. At REFERENCE_BALANCED (substeps 1e-2 mm, Newton 1e-6 and
     1e-4 mm), tighter than `balanced`: the runs must agree to a small multiple of Newton's
     last update."""
-    from solver.gestures import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.gestures import gesture
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     runs = {}
     for on in (False, True):
         sim = Simulation(parse_scene(gesture(duration)), level="coarse", half=True,

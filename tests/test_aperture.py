@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from solver.anatomy.load import load_anatomy
-from solver.aperture import contour_gap, midsagittal_edges
-from solver.face import FaceModel
+from solver.face.anatomy.load import load_anatomy
+from solver.face.aperture import contour_gap, midsagittal_edges
+from solver.face.face_model import FaceModel
 
 
 def _gap(upper_pts, lower_pts):

@@ -1,8 +1,8 @@
-"""The sparsity pattern and the scatter of element blocks into it (solver.assembly)."""
+"""The sparsity pattern and the scatter of element blocks into it (solver.core.assembly)."""
 
 import numpy as np
 
-from solver.assembly import Assembly, Pattern
+from solver.core.assembly import Assembly, Pattern
 
 
 def test_pattern_holds_exactly_the_blocks_couplings_and_indexes_them(rng):

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver.errors import ParameterError
-from solver.muscles import (CALIBRATIONS, DEFAULT_CALIBRATION, MuscleProperties, calibrated,
-                            paper_calibration, peak_force)
-from solver.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
-from solver.scene import SceneError, parse_scene
+from solver.core.errors import ParameterError
+from solver.face.muscles import (CALIBRATIONS, DEFAULT_CALIBRATION, MuscleProperties,
+                                 calibrated, paper_calibration, peak_force)
+from solver.validation.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
+from solver.app.scene import SceneError, parse_scene
 
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
                                 / ".." / "shared" / "data" / "reference-face"))
@@ -63,7 +63,7 @@ def test_paper_calibration_reproduces_table4_on_the_reference_face():
     paper's Table 4 within 0.03 of ours."""
     if not (REFERENCE / "newface.node").is_file():
         pytest.skip(f"reference face not found at {REFERENCE}")
-    from solver.anatomy.load import load_anatomy
+    from solver.face.anatomy.load import load_anatomy
     rows, _ = table4_run(load_anatomy(REFERENCE, half=True), calibration="paper")
     err = row_errors(rows)
     assert np.abs(err).max() <= TABLE4_TOLERANCE, err

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 import solver
-from solver.anatomy.base import RigidSurface
-from solver.assembly import Assembly, Pattern
-from solver.kernels.contact import FACE, VERTEX, boundary_penalty, nearest, penalty_law
-from solver.meshgen import box
-from solver.terms.base import State
-from solver.terms.contact import (PENALTY, LipContact, RigidContact, build_contact_terms,
-                                  nodes_near, tributary_areas)
+from solver.face.anatomy.base import RigidSurface
+from solver.core.assembly import Assembly, Pattern
+from solver.core.kernels.contact import FACE, VERTEX, boundary_penalty, nearest, penalty_law
+from solver.core.meshgen import box
+from solver.core.terms.base import State
+from solver.face.terms.contact import (PENALTY, LipContact, RigidContact,
+                                       build_contact_terms, nodes_near, tributary_areas)
 
 STIFF = solver.MooneyRivlin(c10=0.05, c20=0.0, d=0.04)      # 20 x the face's tissue, MPa
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -143,7 +143,7 @@ def test_centred_triangles_stay_within_a_share_of_a_warped_quads_face(divisions,
     within warp / 8 of the bilinear face, the 16 of the 2 x 2 subdivision within
     warp / 32, a split along one diagonal within warp / 2; each triangle's vertices are
     its weights times the corners, and the virtual vertices lie on the bilinear face."""
-    from solver.terms.contact import centred_triangles
+    from solver.face.terms.contact import centred_triangles
     h = 0.3
     corners = np.array([[-1.0, -1.0, h], [1.0, -1.0, -h], [1.0, 1.0, h], [-1.0, 1.0, -h]])
     tris, vn, vw, quad, weights = centred_triangles(np.array([[0, 1, 2, 3]]), 4, divisions)
@@ -172,7 +172,7 @@ def test_an_ansys_faces_lip_facets_become_the_faces_of_its_bricks():
     pairs them back into the brick faces (in the triangles' winding), so that the lip
     contact follows the bilinear faces (see the test above). A facet that splits no brick
     face, or whose partner is wound the other way, stays a triangle (a, b, c, c)."""
-    from solver.anatomy.ansys import _brick_faces
+    from solver.face.anatomy.ansys import _brick_faces
     mesh = box(2, 1, 1)
     top = [int(i) for i in mesh.node_sets["zmax"]]
     x = mesh.nodes
@@ -194,7 +194,7 @@ def test_subdivided_faces_share_their_edge_midpoints():
     """Two quads and a triangle (a degenerate quad) sharing edges, at divisions 2: one
     midpoint vertex per shared edge, so that the only free edges are the outline's (16 +
     16 + 4 triangles; 9 distinct edges, 2 of them shared: an outline of 7, halved)."""
-    from solver.terms.contact import _Topology, centred_triangles
+    from solver.face.terms.contact import _Topology, centred_triangles
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [2, 6, 5, 5]])
     tris, vn, vw, _, _ = centred_triangles(faces, 7, 2)
     assert len(tris) == 36
@@ -264,7 +264,7 @@ def test_smoothed_lip_law_is_consistent_before_the_lips_touch(rng):
 
 @pytest.mark.parametrize("smoothing", [0.0, 0.02])
 def test_faded_penalty_beyond_a_free_edge_has_exact_derivatives(rng, smoothing):
-    """E = psi(a) phi(l / L) of a point beyond a free edge (solver.kernels.contact.
+    """E = psi(a) phi(l / L) of a point beyond a free edge (solver.core.kernels.contact.
     boundary_penalty): its gradient and Hessian in d against central differences, over
     the whole fade band and depths on both sides of the smoothing."""
     def energy(d, m):
@@ -298,7 +298,7 @@ def test_faded_penalty_beyond_a_free_edge_has_exact_derivatives(rng, smoothing):
 
 
 def _fan(rng):
-    """A free vertex's fan (solver.kernels.contact.vertex_pair): two free edges with their
+    """A free vertex's fan (solver.core.kernels.contact.vertex_pair): two free edges with their
     triangles' normals and two inner edges, around v = 0; returns (ehat, nrm, free)."""
     while True:
         ehat = rng.normal(size=(4, 3))
@@ -313,7 +313,7 @@ def _fan(rng):
 
 
 def _vertex_law(d, ehat, nrm, free, vn, k, smooth, fade):
-    from solver.kernels.contact import vertex_pair
+    from solver.core.kernels.contact import vertex_pair
     fe, ke = np.zeros(12), np.zeros((12, 12))
     e, depth = vertex_pair(np.asarray(d, float), 0, ehat, nrm, free, len(free),
                            np.asarray(vn, float), k, smooth, fade, True, fe, ke)
@@ -696,7 +696,7 @@ def test_faded_lip_penalty_has_consistent_derivatives_over_the_masters(rng, smoo
 def test_generic_face_rests_without_contact_force(level):
     """The generated face's lips and cheeks clear the teeth and each other at rest: no
     offsets, no contact force."""
-    from solver.anatomy.generic import generic_face
+    from solver.face.anatomy.generic import generic_face
     anatomy = generic_face(level=level, half=True)
     n = anatomy.mesh.n_nodes
     for term in build_contact_terms(anatomy):
@@ -710,7 +710,7 @@ def test_generic_face_rests_without_contact_force(level):
 def face_anatomy():
     if not (DATA / "newface.node").is_file():
         pytest.skip(f"reference face data not found in {DATA}")
-    from solver.anatomy.ansys import load_ansys_face
+    from solver.face.anatomy.ansys import load_ansys_face
     return load_ansys_face(str(DATA))
 
 
@@ -758,8 +758,8 @@ def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
     passes a free edge of a teeth sheet near lam = 0.48. Released there (fade 0) its force
     jumps and Newton stalls, the load increment cut below 1e-6; with the faded rim penalty
     the load path goes through."""
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     scene = parse_scene({"scene": {"analysis": "static"}, "muscles": {"driven": ["BUC", "OOP"]},
                          "effects": {"teeth_contact": True, "lip_contact": False,
                                      "stiffening_rule": "intersect"}})
@@ -805,9 +805,9 @@ def test_reference_face_gesture_passes_where_a_lip_slave_met_its_patchs_edge(fac
     t = 0.184 s. With 24 the run passes with at most one cutback (one, at t = 0.15 s,
     where a slave's nearest triangle turns across a concave edge). At `balanced`'s substep
     error tolerance (5e-2 mm) it passes with none, and still fails with 12 candidates."""
-    from solver.gestures import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.gestures import gesture
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     sim = Simulation(parse_scene(gesture(0.2)), anatomy=str(DATA), half=False)
     cutbacks = []
     sim.run(on_record=lambda s, row: cutbacks.append(s.last.cutbacks if s.t > 0 else 0))
@@ -821,7 +821,7 @@ def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_t
     the penalty; once the candidates follow the state (commit), every slave over A's top
     is held by the full penalty of the plane law. The System's pattern follows the new
     pairs, and the rest pairs come back exactly with the rest state (restore)."""
-    from solver.system import System
+    from solver.core.system import System
     mesh, ida, idb, fa, fb = two_blocks()
     term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0, divisions=1)
     q = term.passes[0]
@@ -841,7 +841,7 @@ def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_t
     sysm.commit(u.ravel())
     assert term.blocks_generation == generation + 1
     q = term.passes[0]
-    from solver.assembly import block_dofs
+    from solver.core.assembly import block_dofs
     assert all(np.array_equal(d, block_dofs(b)) for d, b in zip(sysm.pattern.dofs,
                                                                 term.blocks()))
     run = Runner(term, mesh.n_nodes)

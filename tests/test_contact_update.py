@@ -1,4 +1,4 @@
-"""Contact status changes as low-rank updates of a factorization (solver.contact_update):
+"""Contact status changes as low-rank updates of a factorization (solver.core.contact_update):
 the linearized penetrations against the contact terms' gaps and finite differences, the
 corrected direction against the piecewise-linear model it solves, and Newton with and
 without the update on two blocks pressed together.
@@ -9,10 +9,10 @@ import pytest
 import scipy.sparse as sp
 
 import solver
-from solver.contact_update import ContactUpdate
-from solver.linsolve import make_solver
-from solver.meshgen import box
-from solver.terms.contact import LipContact, RigidContact
+from solver.core.contact_update import ContactUpdate
+from solver.core.linsolve import make_solver
+from solver.core.meshgen import box
+from solver.face.terms.contact import LipContact, RigidContact
 from test_contact import STIFF, Runner, grid_surface, two_blocks
 from conftest import REFERENCE_BALANCED
 
@@ -159,7 +159,7 @@ def test_no_recorded_status_leaves_the_direction_alone(rng):
 
 @pytest.mark.parametrize("solver_name", ["superlu", "pardiso"])
 def test_newton_with_the_update_reaches_the_same_contact_state(solver_name):
-    if solver_name not in solver.linsolve.available():
+    if solver_name not in solver.core.linsolve.available():
         pytest.skip("pardiso not installed")
     results = {}
     for update in (False, True):
@@ -182,9 +182,9 @@ def test_newton_with_the_update_reaches_the_same_contact_state(solver_name):
 
 
 def test_lip_gesture_takes_fewer_factorizations_with_the_update():
-    from solver.gestures import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.gestures import gesture
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
 
     runs = {}
     for update in (False, True):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import solver
-from solver.element import NODE_XI, reference_geometry
-from solver.kernels.brick import element_response
+from solver.core.element import NODE_XI, reference_geometry
+from solver.core.kernels.brick import element_response
 
 P = solver.MooneyRivlin().params
 FS = {
@@ -91,9 +91,9 @@ def test_small_strain_stiffness_is_the_tangent_at_zero_strain(form, shape, rng):
     """The damping's K_n kernel (closed form in mu, kappa) against the brick kernel's
     tangent at u = 0 on the same distorted configuration, with a c20 and a c01 that the
     closed form must ignore and count (mu = 2 (c10 + c01))."""
-    from solver.kernels.brick import FORMULATIONS
-    from solver.kernels.mooney_rivlin import small_strain_moduli
-    from solver.kernels.small_strain import small_strain_stiffness
+    from solver.core.kernels.brick import FORMULATIONS
+    from solver.core.kernels.mooney_rivlin import small_strain_moduli
+    from solver.core.kernels.small_strain import small_strain_stiffness
     p = P.copy()
     p[1], p[2] = 0.4 * p[0], 3.0 * p[2]
     X, dn, w = _element(shape, rng)
@@ -109,15 +109,15 @@ def test_small_strain_stiffness_is_the_tangent_at_zero_strain(form, shape, rng):
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("case", FS)
 def test_residual_and_tangent_kernels_match_the_reference_kernel(form, shape, case, rng):
-    """The residual's pass (P written in F, solver.kernels.brick_residual) and the
-    assembly's (node-pair contractions, solver.kernels.brick_tangent) against
-    solver.kernels.brick (whose tangent the finite-difference tests above check), with
+    """The residual's pass (P written in F, solver.core.kernels.brick_residual) and the
+    assembly's (node-pair contractions, solver.core.kernels.brick_tangent) against
+    solver.core.kernels.brick (whose tangent the finite-difference tests above check), with
     all five Mooney-Rivlin terms switched on (c01, c11, c02 are zero in the face's law, so
     their branches are checked here only), over a block of bricks as the parallel drivers
     run them, and an inverted brick flagged."""
-    from solver.kernels.brick import FORMULATIONS, brick_forces
-    from solver.kernels.brick_residual import brick_residual
-    from solver.kernels.brick_tangent import brick_tangent
+    from solver.core.kernels.brick import FORMULATIONS, brick_forces
+    from solver.core.kernels.brick_residual import brick_residual
+    from solver.core.kernels.brick_tangent import brick_tangent
     p = P.copy()
     p[1], p[3], p[4] = 0.4 * p[0], 0.3 * p[2], 0.2 * p[2]
     X, dn, w = _element(shape, rng)

@@ -2,7 +2,7 @@
 
 The reference-face cases use ../shared/data/reference-face (relative to the project root)
 or FACEFMU_REFERENCE_FACE, and skip when it is absent; the generic-face case skips while
-solver.anatomy.generic does not exist.
+solver.face.anatomy.generic does not exist.
 """
 
 import os
@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from facefmu.cli import main
-from solver.anatomy.base import MUSCLE_NAMES, Anatomy, Fibre
-from solver.errors import ParameterError
-from solver.io import export_anatomy, green_lagrange_strain, principal_strains
-from solver.io.export import SIDES, vtk_cells
-from solver.mesh import Mesh
-from solver.meshgen import box
-from solver.plot import plot_anatomy
+from solver.face.anatomy.base import MUSCLE_NAMES, Anatomy, Fibre
+from solver.core.errors import ParameterError
+from solver.app.io import export_anatomy, green_lagrange_strain, principal_strains
+from solver.app.io.export import SIDES, vtk_cells
+from solver.core.mesh import Mesh
+from solver.core.meshgen import box
+from solver.app.plot import plot_anatomy
 
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
                            Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -221,7 +221,7 @@ def test_cli_as_module(tmp_path):
 
 
 def test_cli_generic(tmp_path, capsys):
-    pytest.importorskip("solver.anatomy.generic")
+    pytest.importorskip("solver.face.anatomy.generic")
     png = tmp_path / "generic.png"
     assert main(["anatomy", "generic", "--half", "--export", str(tmp_path / "g.vtu"),
                  "--png", str(png)]) == 0

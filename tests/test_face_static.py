@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from solver.anatomy.load import load_anatomy
-from solver.face import FaceModel
+from solver.face.anatomy.load import load_anatomy
+from solver.face.face_model import FaceModel
 
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
                                 / ".." / "shared" / "data" / "reference-face"))

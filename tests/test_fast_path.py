@@ -11,10 +11,11 @@ import pytest
 import scipy.sparse as sp
 
 import solver
-from solver.linsolve import SuperLU, _openblas_threads, available, make_solver, single_threaded_blas
-from solver.meshgen import box
-from solver.newton import NewtonOptions, newton
-from solver.transient import Transient
+from solver.core.linsolve import (SuperLU, _openblas_threads, available, make_solver,
+                                  single_threaded_blas)
+from solver.core.meshgen import box
+from solver.core.newton import NewtonOptions, newton
+from solver.core.transient import Transient
 from conftest import REFERENCE_BALANCED, assert_same_lips, gesture_both_ways
 
 TIP_FORCE = (0.0, 0.0, -1e-4)       # N: about 1.3 mm of tip deflection, a nonlinear bend
@@ -217,7 +218,7 @@ def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
     env = {k: v for k, v in os.environ.items() if k != "MKL_NUM_THREADS"}
     if preset:
         env["MKL_NUM_THREADS"] = preset
-    code = ("import os, solver.linsolve; "
+    code = ("import os, solver.core.linsolve; "
             "print(os.environ['MKL_NUM_THREADS'], len(os.sched_getaffinity(0)))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout.split()
@@ -227,13 +228,13 @@ def test_mkl_threads_default_to_the_processs_cpus_unless_set(preset):
 @pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
 def test_pardiso_loads_mkl_without_searching_the_file_system():
     """pypardiso globs all of sys.prefix for libmkl_rt when it cannot find it by name (a
-    second, in a run's first step); solver.linsolve points it at the mkl package's file
+    second, in a run's first step); solver.core.linsolve points it at the mkl package's file
     (here with glob.glob disabled in a fresh process), unless the user set the path."""
     env = {k: v for k, v in os.environ.items() if k != "PYPARDISO_MKL_RT"}
     code = ("import glob, os\n"
             "def boom(*a, **k): raise AssertionError('glob')\n"
             "glob.glob = boom\n"
-            "from solver.linsolve import make_solver\n"
+            "from solver.core.linsolve import make_solver\n"
             "lin = make_solver('pardiso-single')\n"
             "print(type(lin).__name__, os.path.isfile(os.environ['PYPARDISO_MKL_RT']))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
@@ -247,7 +248,7 @@ def test_mkl_buffers_are_handed_back_and_pardiso_works_after(rng):
     memory manager holds fewer bytes after it than after PARDISO's phase 0 alone
     (mkl_mem_stat), and a new factorization solves as before."""
     import ctypes
-    from solver.linsolve import Pardiso, free_mkl_buffers
+    from solver.core.linsolve import Pardiso, free_mkl_buffers
     lib = ctypes.CDLL(os.environ["PYPARDISO_MKL_RT"])
     stat = lib.MKL_Mem_Stat
     stat.restype, stat.argtypes = ctypes.c_int64, [ctypes.POINTER(ctypes.c_int)]
@@ -271,7 +272,7 @@ def test_mkl_buffers_are_handed_back_and_pardiso_works_after(rng):
 
 @pytest.mark.skipif("pardiso" not in available(), reason="pypardiso not installed")
 def test_pardiso_gathers_the_upper_triangle_again_for_a_new_pattern(rng):
-    from solver.linsolve import Pardiso
+    from solver.core.linsolve import Pardiso
     lin = Pardiso()
     for n in (30, 30, 40):
         A = sp.random(n, n, density=0.2, random_state=rng) + sp.identity(n) * n
@@ -290,7 +291,7 @@ def test_pardiso_solves_without_refinement_and_stays_exact_on_indefinite_matrice
     """Our iparm is in force (MKL's defaults refined every solution twice: three solves per
     Newton direction); a symmetric indefinite saddle-point matrix, which 1x1 pivoting must
     still handle (perturbed pivots, then refinement), solves to round-off."""
-    from solver.linsolve import Pardiso
+    from solver.core.linsolve import Pardiso
     n, m = 60, 12
     A = sp.random(n, n, density=0.1, random_state=rng)
     A = sp.csr_matrix(A @ A.T + sp.identity(n))                      # SPD
@@ -316,7 +317,7 @@ def test_single_precision_pardiso_solves_to_its_precision_and_falls_back_to_doub
     round-off in double, so the float32 path is the one taken); a saddle-point matrix
     (perturbed pivots) and an SPD matrix of condition 1e9 (a first solve far off) are
     factorized again in double and solve to round-off; 'auto' is the single one."""
-    from solver.linsolve import SINGLE_CHECK, Pardiso
+    from solver.core.linsolve import SINGLE_CHECK, Pardiso
     n, m = 60, 12
     A = sp.random(n, n, density=0.1, random_state=rng)
     A = sp.csr_matrix(A @ A.T + sp.identity(n))
@@ -354,9 +355,9 @@ def test_partial_refresh_assembles_only_contact_within_a_call_and_reaches_the_sa
     full assembly at every factorization; with partial_reach 0 every refactorization away
     from the full assembly's state assembles everything. (Without Krylov directions, which
     assemble the contact's tangent for their own use.)"""
-    from solver.gestures import gesture
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.app.gestures import gesture
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     runs = {}
     for partial, reach in ((False, 0.05), (True, 0.05), (True, 0.0)):
         sim = Simulation(parse_scene(gesture(0.03)), level="coarse", half=True,
@@ -445,7 +446,7 @@ def test_after_a_dropped_reused_step_a_call_tries_no_more_reused_directions(monk
     call, the call's later iterates skip the plain reused direction, so that no call
     drops more than one step; without it the lip gesture has calls that drop several.
     The outputs agree to a small multiple of Newton's last update."""
-    import solver.transient as T
+    import solver.core.transient as T
     calls = []
     newton = T.newton
 

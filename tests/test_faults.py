@@ -19,10 +19,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from solver.anatomy.ansys import _read_elements, _read_nodes, load_ansys_face
-from solver.errors import FaceFMUError, MeshError, MeshFileError
-from solver.scene import Scene, SceneError, load_scene
-from solver.simulation import BUILTIN_DIR, Simulation
+from solver.face.anatomy.ansys import _read_elements, _read_nodes, load_ansys_face
+from solver.core.errors import FaceFMUError, MeshError, MeshFileError
+from solver.app.scene import Scene, SceneError, load_scene
+from solver.app.simulation import BUILTIN_DIR, Simulation
 from conftest import SCRIPTS
 
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
@@ -241,7 +241,7 @@ def test_a_folder_without_its_lip_surfaces_names_the_file(tmp_path):
 STALE_CHECK = """
 import json
 import numpy as np
-import solver.kernels.material_point as mp
+import solver.core.kernels.material_point as mp
 W = mp.response(np.diag([1.1, 0.95, 0.97]), [2.5e-3, 0.0, 1.175e-3, 0.0, 0.0, 0.8])[0]
 print(json.dumps({"file": mp.__file__, "W": W,
                   "hits": sum(mp.point_response.stats.cache_hits.values()),
@@ -300,8 +300,8 @@ if sys.argv[1] == "no-temp":            # no temporary folder can be written eit
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     import solver
-    from solver import _cache
-    from solver.kernels.invariants import inverse3
+    from solver.core import _cache
+    from solver.core.kernels.invariants import inverse3
     det = inverse3(np.diag([2.0, 3.0, 4.0]), np.empty((3, 3)))
 print(json.dumps({"cache_dir": None if _cache.CACHE_DIR is None else str(_cache.CACHE_DIR),
                   "det": det, "hits": sum(inverse3.stats.cache_hits.values()),
@@ -368,7 +368,7 @@ def test_with_no_writable_folder_at_all_kernels_still_compile(tmp_path, blocked)
 
 def test_a_shared_fallback_folder_someone_else_could_write_is_not_used(tmp_path, monkeypatch):
     import tempfile
-    from solver import _cache
+    from solver.core import _cache
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     mine = _cache._fallback_dir()
     assert mine.parent == tmp_path and oct(mine.stat().st_mode & 0o777) == oct(0o700)
@@ -414,7 +414,7 @@ def test_the_kernel_cache_stamp_covers_every_kernel_file(tmp_path):
     functions, so that an edit of a jitted helper in another file recompiles its callers;
     files without numba functions do not take part."""
     import shutil
-    from solver._cache import kernel_sources_stamp
+    from solver.core._cache import kernel_sources_stamp
     from conftest import ROOT
     root = tmp_path / "solver"
     shutil.copytree(ROOT / "solver" / "kernels", root / "kernels")

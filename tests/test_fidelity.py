@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from solver.errors import ParameterError
-from solver.fidelity import FIDELITIES, PRESETS, apply_fidelity
-from solver.scene import LEVELS, Scene, SceneError, parse_scene
-from solver.simulation import Simulation
-from solver.terms.contact import PENALTY, TEETH_PENALTY
+from solver.core.errors import ParameterError
+from solver.app.fidelity import FIDELITIES, PRESETS, apply_fidelity
+from solver.app.scene import LEVELS, Scene, SceneError, parse_scene
+from solver.app.simulation import Simulation
+from solver.face.terms.contact import PENALTY, TEETH_PENALTY
 
 ROOT = Path(__file__).resolve().parents[1]
 ACCURACY = ROOT / "benchmarks" / "accuracy_vs_time.py"

@@ -88,9 +88,9 @@ def test_stepwise_rollback_refusals_and_two_instances(fmu, tmp_path):
 def generic_probe():
     """The FMU's default model (the default scene at the `balanced` preset: the generic half
     face's mesh at that preset's level and rows) and its penetration probe."""
-    from solver.anatomy.load import load_anatomy
-    from solver.fidelity import fidelity_overrides
-    from solver.stability import Probe
+    from solver.face.anatomy.load import load_anatomy
+    from solver.app.fidelity import fidelity_overrides
+    from solver.validation.stability import Probe
     preset = fidelity_overrides("balanced")
     return Probe(load_anatomy("generic", preset["level"], preset["half"], preset["rows"]))
 
@@ -109,7 +109,7 @@ def test_the_default_fmu_keeps_the_lips_in_front_of_the_teeth(fmu, tmp_path, gen
     """OOP = 1 for 0.3 s with the FMU's default parameters: the lips protrude, and no lip
     node goes behind the teeth (measured here, outside the FMU, on its serialized states
     every 50 ms)."""
-    from solver.stability import CONTACT_TOLERANCE
+    from solver.validation.stability import CONTACT_TOLERANCE
     res, stdout = _run("held_activation.py", fmu, tmp_path, "OOP", "0.3")
     rows = res["rows"]
     assert rows[-1]["lip_protrusion"] > 0.2                   # OOP protrudes the lips

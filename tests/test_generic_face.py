@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from solver.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
-from solver.anatomy.generic import LEVELS, generic_face
-from solver.element import natural_coordinates
-from solver.errors import ParameterError
+from solver.face.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
+from solver.face.anatomy.generic import LEVELS, generic_face
+from solver.core.element import natural_coordinates
+from solver.core.errors import ParameterError
 
 PAPER_BOX = np.array([143.52, 127.77, 137.81])
 PAPER_BRICKS, PAPER_NODES = 6344, 8736
@@ -346,9 +346,9 @@ def test_half_face(paper, half):
 
 
 def test_rows_refine_through_the_thickness_only():
-    from solver.anatomy.load import load_anatomy
-    from solver.errors import ParameterError
-    from solver.scene import SceneError, parse_scene
+    from solver.face.anatomy.load import load_anatomy
+    from solver.core.errors import ParameterError
+    from solver.app.scene import SceneError, parse_scene
     one, two = (load_anatomy("generic", "coarse", True, rows=r) for r in (1, 2))
     assert two.mesh.n_bricks == 2 * one.mesh.n_bricks
     assert two.mesh.volumes.sum() == pytest.approx(one.mesh.volumes.sum(), rel=1e-12)

@@ -1,4 +1,4 @@
-"""The jaw (solver.jaw): rigid kinematics, what it carries, the lips it opens, tangents.
+"""The jaw (solver.face.jaw): rigid kinematics, what it carries, the lips it opens, tangents.
 
 The checks: the closed jaw is exactly the model without one; the mandible's nodes, the
 lower teeth and the mandible's insertions follow the rigid motion computed here from
@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver.anatomy.load import load_anatomy
-from solver.errors import ParameterError
-from solver.jaw import BALKWILL_DEG, BONWILL_MM, JAW_RANGES
-from solver.simulation import Simulation
-from solver.stability import CONTACT_TOLERANCE, Probe
+from solver.face.anatomy.load import load_anatomy
+from solver.core.errors import ParameterError
+from solver.face.jaw import BALKWILL_DEG, BONWILL_MM, JAW_RANGES
+from solver.app.simulation import Simulation
+from solver.validation.stability import CONTACT_TOLERANCE, Probe
 from test_contact import Runner, fd_derivatives, fd_errors
 
 _DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
@@ -233,7 +233,7 @@ def test_a_failed_step_puts_the_jaw_back():
 
 
 def test_a_scene_schedule_drives_the_jaw(tmp_path):
-    from solver.scene import SceneError, load_scene
+    from solver.app.scene import SceneError, load_scene
     path = tmp_path / "jaw.toml"
     path.write_text('[scene]\nname = "jaw"\nduration = 0.04\n'
                     '[effects]\nlip_contact = false\nteeth_contact = false\n'
@@ -254,7 +254,7 @@ def test_the_moved_teeth_keep_every_slaves_nearest_triangle_among_its_candidates
     the seam stay with the upper arch): each slave's candidate triangles must still hold
     its nearest triangle of the whole surface (the candidate search reaches as far as the
     stretched triangles are long)."""
-    from solver.kernels.contact import nearest
+    from solver.core.kernels.contact import nearest
     sim = Simulation("default", fidelity="balanced", driven=())
     theta = 2.0 * math.degrees(math.asin(6.0 / BONWILL_MM))
     for k in range(1, 6):

@@ -1,11 +1,11 @@
-"""Newton directions by GMRES on a reused factorization (solver.krylov)."""
+"""Newton directions by GMRES on a reused factorization (solver.core.krylov)."""
 
 import numpy as np
 import scipy.sparse as sp
 from conftest import assert_same_lips, gesture_both_ways
 
-from solver.krylov import gmres
-from solver.linsolve import SuperLU
+from solver.core.krylov import gmres
+from solver.core.linsolve import SuperLU
 
 
 def _spd(n, rng):

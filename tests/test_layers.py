@@ -15,18 +15,27 @@ import pytest
 
 SOLVER = Path(__file__).resolve().parents[1] / "solver"
 
-# The finite-element core: mesh, material, assembly, the nonlinear and linear solvers,
-# time stepping and the generic terms, with their numba kernels. Knows no face.
-CORE = {f"solver.{m}" for m in (
-    "mesh", "element", "materials", "assembly", "system", "model", "newton", "linsolve",
-    "krylov", "transient", "contact_update", "errors", "units", "_cache", "embedding",
-    "strain", "terms.base", "terms.elasticity", "terms.inertia", "terms.loads",
-    "terms.gravity")} | {"solver.kernels"} | {
-    f"solver.kernels.{p.stem}" for p in (SOLVER / "kernels").glob("*.py")
-    if p.stem != "__init__"}
-# the face-specific modules and packages (a core module importing one fails the test)
-FACE = {f"solver.{m}" for m in ("anatomy", "muscles", "face", "jaw", "scene", "fidelity",
-                                "simulation", "rom", "stability", "plot", "io")}
+# The layers, bottom up: a module may import modules of its own layer and of the layers
+# below it, never above. The core (mesh, element, materials, assembly, Newton, linear
+# solvers, time stepping, generic terms, numba kernels) knows no face; the face
+# (anatomies, muscles, stiffening, cables, contact, jaw, lip measures) knows no
+# application; the application (scenes, fidelities, Simulation, export, plots) knows no
+# reduced model; the reduced model (solver.rom) builds on the application's Simulation;
+# the runners (the factory solver.entry.open_simulation, above the full and the reduced
+# simulation, and the parallel sweeps that use it); validation (the stability cases,
+# Table 4) uses all of them; the package's __init__ exports from every layer.
+LAYERS = (("solver.core",), ("solver.face",), ("solver.app",), ("solver.rom",),
+          ("solver.entry", "solver.sweep"), ("solver.validation",), ("solver",))
+
+
+def layer(module):
+    """The index of module's layer in LAYERS."""
+    for i, group in enumerate(LAYERS):
+        if any(module == g or module.startswith(g + ".") for g in group if g != "solver"):
+            return i
+    assert module == "solver", f"{module} is in no layer"
+    return len(LAYERS) - 1
+
 
 # Imports inside a function that close a cycle: (importer, imported) -> why.
 CYCLE_BREAKS = {
@@ -119,32 +128,32 @@ def _cycle(edges):
     return None
 
 
-def _in(module, group):
-    return any(module == g or module.startswith(g + ".") for g in group)
-
-
 def test_the_graph_sees_relative_absolute_and_function_level_imports():
-    assert ("solver.newton", False) in GRAPH["solver.model"]                # from .newton
-    assert ("solver.kernels.scatter", False) in GRAPH["solver.assembly"]    # from .kernels.x
-    assert ("solver._cache", False) in GRAPH["solver"]                      # from . import
-    assert ("solver.kernels.geometry", True) in GRAPH["solver.element"]     # in a function
+    assert ("solver.core.newton", False) in GRAPH["solver.core.model"]
+    assert ("solver.core.kernels.scatter", False) in GRAPH["solver.core.assembly"]
+    assert ("solver.core._cache", False) in GRAPH["solver"]                  # from x import m
+    assert ("solver.core.kernels.geometry", True) in GRAPH["solver.core.element"]  # in a function
     assert ("solver.rom.simulation", True) in GRAPH["solver.entry"]
-    assert ("solver.simulation", False) in GRAPH["solver.rom.simulation"]   # from ..x
+    assert ("solver.app.simulation", False) in GRAPH["solver.rom.simulation"]
 
 
-def test_the_core_names_existing_modules_and_no_face_module():
-    assert CORE <= set(MODULES), sorted(CORE - set(MODULES))
-    assert not [m for m in CORE if _in(m, FACE)]
-    assert all(any(m == f or m.startswith(f + ".") for m in MODULES) for f in FACE)
+def test_every_module_is_in_a_layer_and_every_layer_has_modules():
+    assert all(layer(m) is not None for m in MODULES)
+    assert all(any(layer(m) == i for m in MODULES) for i in range(len(LAYERS)))
 
 
-@pytest.mark.parametrize("module", sorted(CORE))
-def test_a_core_module_imports_only_core_modules(module):
-    outside = [(m, "in a function" if inside else "module level")
-               for m, inside in GRAPH[module] if m not in CORE]
-    assert not outside, (f"{module} imports outside the FE core "
-                         f"(face-specific: {[m for m, _ in outside if _in(m, FACE)]}): "
-                         f"{outside}")
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_a_module_imports_nothing_from_a_layer_above_its_own(module):
+    above = [(m, "in a function" if inside else "module level")
+             for m, inside in GRAPH[module] if layer(m) > layer(module)]
+    assert not above, f"{module} ({LAYERS[layer(module)]}) imports from above: {above}"
+
+
+def test_the_layer_rule_catches_a_core_module_that_imports_the_face():
+    module = "solver.core.model"
+    graph = dict(GRAPH)
+    graph[module] = GRAPH[module] + [("solver.face.face_model", True)]
+    assert [m for m, _ in graph[module] if layer(m) > layer(module)] == ["solver.face.face_model"]
 
 
 def test_no_cycle_among_module_level_imports():

@@ -1,11 +1,11 @@
-"""Newton's line search (solver.newton): its secant model, its tests on the free DOFs."""
+"""Newton's line search (solver.core.newton): its secant model, its tests on the free DOFs."""
 
 from types import SimpleNamespace
 
 import numpy as np
 from conftest import assert_same_lips, gesture_both_ways
 
-from solver.newton import NewtonOptions, _Line, _line_search, _Secant
+from solver.core.newton import NewtonOptions, _Line, _line_search, _Secant
 
 
 class _Lined:
@@ -148,9 +148,9 @@ def test_newton_stuck_at_a_jump_fails_at_once_not_after_the_stall_window():
     """From near the jump Newton's first search carries the node to it, where every
     direction's search ends at s ~ 0; two such searches in a row fail the call (the
     caller cuts back) instead of the stall test's eight iterations."""
-    from solver.linsolve import SuperLU
-    from solver.newton import newton
-    from solver.system import System
+    from solver.core.linsolve import SuperLU
+    from solver.core.newton import newton
+    from solver.core.system import System
     reports = {}
     for after in (2, 100):
         system = System([_Spring(), _Jump()], 1, [])

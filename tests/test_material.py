@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import solver
-from solver.kernels.material_point import response
+from solver.core.kernels.material_point import response
 
 PARAMS = [solver.MooneyRivlin().params,
           solver.MooneyRivlin(c10=2e-3, c01=1e-3, c20=1e-3, c11=5e-4, c02=3e-4, d=0.1).params]
@@ -41,8 +41,8 @@ def test_first_piola_is_energy_derivative(p, case):
 @pytest.mark.parametrize("case", CASES)
 def test_material_tangent_is_stress_derivative(p, case):
     """D_IJKL = 2 dS_IJ / dC_KL, checked in Voigt form against central differences."""
-    from solver.kernels.invariants import VOIGT
-    from solver.kernels.material_point import point_response
+    from solver.core.kernels.invariants import VOIGT
+    from solver.core.kernels.material_point import point_response
     F = CASES[case]
     C = F.T @ F
     S, D = np.empty((3, 3)), np.empty((6, 6))

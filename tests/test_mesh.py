@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import solver
-from solver.meshgen import box
+from solver.core.meshgen import box
 
 
 def test_box_counts_and_sets():

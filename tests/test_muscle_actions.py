@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver.anatomy.load import load_anatomy
-from solver.scene import parse_scene
-from solver.simulation import Simulation
+from solver.face.anatomy.load import load_anatomy
+from solver.app.scene import parse_scene
+from solver.app.simulation import Simulation
 
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
                                / ".." / "shared" / "data" / "reference-face"))
@@ -76,7 +76,7 @@ def _cheek_on_teeth(sim, cheek):
     """(total contact force (N) of the teeth on the cheek nodes (the nodes cheek (k,) among
     the teeth contact's slaves), their displacements along the contact's normal (mm,
     positive away from the teeth) where they touch)."""
-    from solver.terms.contact import RigidContact
+    from solver.face.terms.contact import RigidContact
     force, along = 0.0, []
     for term in sim.contact:
         if not isinstance(term, RigidContact):
@@ -147,9 +147,9 @@ def _pressed_lips(duration):
 def test_pressed_lips_close_without_interpenetrating():
     """OOP + BUC stepped to 1 for 0.3 s, transient with lip/lip and lip/teeth contact: the
     lips close; no active slave penetrates its master by more than 0.05 mm, and measured
-    outside the model (solver.stability.Probe: a lip-surface node inside another brick)
+    outside the model (solver.validation.stability.Probe: a lip-surface node inside another brick)
     no lip node has entered the other lip by more than 0.05 mm."""
-    from solver.stability import Probe
+    from solver.validation.stability import Probe
     anatomy, sim, worst = _pressed_lips(0.3)
     lips = next(t for t in sim.contact if t.name == "lip_contact")
     assert lips.n_active > 0 and lips.total_force > 0.01

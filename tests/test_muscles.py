@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 import solver
-from solver.activation import Activation
-from solver.anatomy.base import Anatomy, Fibre
-from solver.meshgen import box
-from solver.muscles import MuscleProperties
-from solver.system import System
-from solver.terms.cables import Cables
-from solver.terms.stiffening import Stiffening, muscle_neighbourhoods
+from solver.face.activation import Activation
+from solver.face.anatomy.base import Anatomy, Fibre
+from solver.core.meshgen import box
+from solver.face.muscles import MuscleProperties
+from solver.core.system import System
+from solver.face.terms.cables import Cables
+from solver.face.terms.stiffening import Stiffening, muscle_neighbourhoods
 
 
 def _anatomy(points, insertion=None, muscle="OOP"):
@@ -113,7 +113,7 @@ def test_stiffening_in_the_tissues_pass_equals_its_own_pass(a, rng):
     """With the tissue's Elasticity as host the extra c10, c20 go into the tissue's kernel
     pass: residual, tangent and energy as with the stiffening's own pass over its bricks
     (isochoric, full F at the Gauss points), and the term has no blocks of its own."""
-    from solver.terms.elasticity import Elasticity
+    from solver.core.terms.elasticity import Elasticity
     anat = _anatomy([[0.5, 1.0, 1.0], [7.5, 1.0, 1.0]])     # through one column of bricks
     mesh = anat.mesh
     regions = muscle_neighbourhoods(anat, ["OOP"], {"OOP": 0.5})
@@ -167,7 +167,7 @@ def test_volume_rule_stiffens_the_tube_whatever_the_mesh(n):
     """Weighted by the volume fraction within r, the stiffened volume is the tube's
     pi r^2 L on a coarse and a fine mesh; the paper's whole-brick rule takes more, the
     more the coarser the mesh."""
-    from solver.terms.stiffening import muscle_weights
+    from solver.face.terms.stiffening import muscle_weights
     L, r = 8.0, 1.0
     mesh = box(n, n, n, (L, 4.0, 4.0))
     fib = Fibre("OOP", "left", np.array([[0.0, 2.1, 1.9], [L, 2.1, 1.9]]),

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
-from solver.anatomy.ansys import _orient, load_ansys_face
-from solver.element import reference_geometry
-from solver.errors import FaceFMUError, MeshFileError
+from solver.face.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
+from solver.face.anatomy.ansys import _orient, load_ansys_face
+from solver.core.element import reference_geometry
+from solver.core.errors import FaceFMUError, MeshFileError
 
 DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
                            Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -214,13 +214,13 @@ def test_a_generic_scene_at_a_preset_runs_on_the_reference_face(face):
     """A scene whose preset sets the generic mesh's rows (balanced: 2) can be moved to the
     ANSYS face by an override: its own mesh, the preset's tolerances (benchmarks/fast_path.py
     case a); rows given with it are still refused."""
-    from solver.errors import ParameterError
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
+    from solver.core.errors import ParameterError
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
     spec = {"scene": {"name": "t", "analysis": "static", "fidelity": "balanced"},
             "muscles": {"driven": ["OOP"]}}
     sim = Simulation(parse_scene(spec), anatomy=str(DATA), half=True)
-    from solver.fidelity import PRESETS
+    from solver.app.fidelity import PRESETS
     assert sim.scene.rows is None
     assert sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
     assert 0 < sim.anatomy.mesh.n_nodes < face.mesh.n_nodes          # the half face

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 import pytest
 
-from solver.scene import Scene
+from solver.app.scene import Scene
 from solver.entry import open_simulation
 
 
@@ -67,7 +67,7 @@ def test_rom_follows_the_full_model_on_a_training_pattern(trained):
 
 
 def test_model_file_round_trip_and_key_check(trained, tmp_path):
-    from solver.errors import FaceFMUError
+    from solver.core.errors import FaceFMUError
     from solver.rom.store import load_model, model_key, save_model
     a, meta = trained["arrays"], trained["meta"]
     path = save_model(tmp_path / "copy.npz", a, meta)
@@ -113,7 +113,7 @@ def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
 
 def test_a_levels_own_rows_given_or_not_name_the_same_model():
     from solver.rom.store import model_key
-    from solver.simulation import resolve_scene
+    from solver.app.simulation import resolve_scene
 
     scene = resolve_scene("open_round").with_overrides(level="coarse", half=True)
     assert model_key(scene.with_overrides(rows=1)) == model_key(scene)

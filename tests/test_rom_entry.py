@@ -49,7 +49,7 @@ def test_scene_file_fidelity_realtime_builds_the_reduced_model(trained, scene_fi
                                                                monkeypatch):
     from solver.rom.simulation import ReducedSimulation
     from solver.rom.store import model_key
-    from solver.scene import load_scene
+    from solver.app.scene import load_scene
     from solver.entry import open_simulation
     scene = load_scene(scene_file)
     assert scene.fidelity == "realtime" and scene.level == "coarse"
@@ -64,8 +64,8 @@ def test_scene_file_fidelity_realtime_builds_the_reduced_model(trained, scene_fi
 def test_simulation_is_the_full_model_and_refuses_a_reduced_fidelity(scene_file):
     """Simulation builds the full model: a scene file that names "realtime" gets it at the
     realtime knobs; fidelity="realtime" given to it is refused, naming open_simulation."""
-    from solver.errors import ParameterError
-    from solver.simulation import Simulation
+    from solver.core.errors import ParameterError
+    from solver.app.simulation import Simulation
     sim = Simulation(scene_file)
     assert type(sim) is Simulation and sim.scene.fidelity == "realtime"
     assert (sim.scene.level, sim.scene.half) == ("coarse", True)

@@ -97,7 +97,7 @@ def test_fast_method_follows_the_reference_method(trained):
 
 
 def test_trust_check_gives_the_full_models_residual(trained, states):
-    from solver.terms.inertia import passive_tangent
+    from solver.core.terms.inertia import passive_tangent
     rom, seq = states
     chk = _rom(trained).checker
     q, _ = seq[-1]
@@ -142,7 +142,7 @@ def test_a_rolled_back_step_repeats_exactly(trained):
 
 
 def test_short_lists_distance_is_the_contact_kernels(rng):
-    from solver.kernels.contact import nearest
+    from solver.core.kernels.contact import nearest
     from solver.rom.contact_kernels import _triangle_d2
     xv, tris = rng.normal(size=(3, 3)), np.array([[0, 1, 2]])
     w, wt = np.empty(3), np.empty(3)

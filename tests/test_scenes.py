@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from solver.anatomy.base import MUSCLE_NAMES
-from solver.scene import SceneError, load_scene, parse_scene
-from solver.simulation import Simulation, builtin_scenes, resolve_scene
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.app.scene import SceneError, load_scene, parse_scene
+from solver.app.simulation import Simulation, builtin_scenes, resolve_scene
 
 
 @pytest.mark.parametrize("name", builtin_scenes())
@@ -59,7 +59,7 @@ EFFECT_KEYS = ("inertia", "damping", "stiffening", "stiffening_rule", "lip_conta
 def test_every_builtin_scene_states_its_effects(name):
     import tomllib
 
-    from solver.simulation import BUILTIN_DIR
+    from solver.app.simulation import BUILTIN_DIR
     data = tomllib.loads((BUILTIN_DIR / f"{name}.toml").read_text())
     assert set(EFFECT_KEYS) <= set(data.get("effects", {})), name
 

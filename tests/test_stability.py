@@ -1,4 +1,4 @@
-"""Hard cases stay stable: the quick versions of solver/stability.py's cases (the full ones
+"""Hard cases stay stable: the quick versions of solver/validation/stability.py's cases (the full ones
 run with `python benchmarks/stress.py`, or here with `pytest -m slow`).
 
 For every case: no NaN or inf, no inverted brick (det F > 0 at every Gauss point), lips
@@ -17,10 +17,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from solver import stability as S
-from solver.anatomy.base import MUSCLE_NAMES
-from solver.simulation import Simulation
-from solver.transient import StepStats
+from solver.validation import stability as S
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.app.simulation import Simulation
+from solver.core.transient import StepStats
 from conftest import SCRIPTS
 
 QUICK = {c.name: c for c in S.cases(full=False)}
@@ -79,7 +79,7 @@ def test_quick_cases_through_the_fmu(fmu, tmp_path):
                           capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert "ok" in proc.stdout.splitlines(), proc.stdout[-2000:] + proc.stderr[-4000:]
     results = json.loads((tmp_path / "out.json").read_text())
-    from solver.anatomy.load import load_anatomy
+    from solver.face.anatomy.load import load_anatomy
     bounds = S.output_bounds(load_anatomy("generic", "coarse", True))
     for n in names:
         problems, m = S.check_fmu_run(QUICK[n], results[n], quick_run(n), bounds)
@@ -100,8 +100,8 @@ def test_lips_stay_out_of_each_other_under_oop_and_buc(scene, fidelity, steps):
     """OOP + BUC at 1 in 5 ms steps with lip and teeth contact (the stress case's scene,
     and the default scene with all ten muscles): after every step no lip node is inside
     the other lip or behind the teeth by more than the contact tolerance, measured
-    outside the model (solver.stability.Probe: depths behind the bilinear faces)."""
-    from solver.scene import parse_scene
+    outside the model (solver.validation.stability.Probe: depths behind the bilinear faces)."""
+    from solver.app.scene import parse_scene
     if scene == "oop_buc_contact":
         scene = parse_scene(QUICK[scene].scene)
     sim = Simulation(scene, fidelity=fidelity or None)
@@ -207,7 +207,7 @@ def test_probe_sees_a_node_inside_a_brick_only_where_it_is(rng):
     node = np.array([-23.802414, 69.482746, -79.396306])
     assert S.brick_winding(xe, node) == pytest.approx(0.0, abs=1e-9)
     assert not S.inside_bricks(xe[None], node[None])[0]
-    from solver.element import shape_functions
+    from solver.core.element import shape_functions
     xi = rng.uniform(-0.9, 0.9, (50, 3))
     pts = np.einsum("pa,ai->pi", shape_functions(xi), xe)
     assert S.inside_bricks(np.repeat(xe[None], 50, axis=0), pts).all()
@@ -282,7 +282,7 @@ def test_a_refusal_that_leaves_a_hidden_trace_is_caught(monkeypatch):
 
 def test_halved_scene_halves_the_substep_controls():
     scene = S.halved(QUICK["bang_bang_20hz"].scene)
-    from solver.scene import Scene, parse_scene
+    from solver.app.scene import Scene, parse_scene
     sc, default = parse_scene(scene), Scene()
     assert sc.substep_tol == default.substep_tol / 4
     assert sc.max_substep == default.max_substep / 2
@@ -290,7 +290,7 @@ def test_halved_scene_halves_the_substep_controls():
 
 
 def test_case_scenes_round_trip_through_toml(tmp_path):
-    from solver.scene import load_scene, parse_scene
+    from solver.app.scene import load_scene, parse_scene
     for case in QUICK.values():
         path = tmp_path / f"{case.name}.toml"
         path.write_text(S.to_toml(case.scene))

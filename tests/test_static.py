@@ -5,8 +5,8 @@ import pytest
 from scipy.optimize import brentq
 
 import solver
-from solver.kernels.material_point import response
-from solver.meshgen import box
+from solver.core.kernels.material_point import response
+from solver.core.meshgen import box
 
 
 def _uniaxial_model(stretch, n=3, L=10.0, material=None):
@@ -145,8 +145,8 @@ def test_no_locking_in_bending_at_nu_0499(formulation, locks):
 def test_a_load_step_that_creeps_on_in_ever_smaller_steps_fails_with_a_reason(monkeypatch):
     """Steps that succeed and fail in turn (a residual jump no smaller step crosses) shrink
     the increment without a run of cutbacks: the solve must fail, not loop forever."""
-    import solver.model as model_module
-    from solver.newton import NewtonReport
+    import solver.core.model as model_module
+    from solver.core.newton import NewtonReport
 
     _, model = _uniaxial_model(1.2)
     before = model.u.copy()
@@ -188,9 +188,9 @@ def test_a_load_stepping_that_crawls_is_failed_with_the_state_restored():
 
 
 def test_damped_relaxation_reaches_the_load_stepped_equilibrium():
-    """Where load-stepped Newton converges, the damped relaxation (solver.transient.relax)
+    """Where load-stepped Newton converges, the damped relaxation (solver.core.transient.relax)
     ends at the same equilibrium, to Newton's tolerance, and leaves no damping term."""
-    from solver.transient import relax
+    from solver.core.transient import relax
     mesh = box(2, 2, 4, (2.0, 2.0, 8.0))
     results = []
     for how in ("newton", "relax"):
@@ -212,7 +212,7 @@ def test_damped_relaxation_reaches_the_load_stepped_equilibrium():
 def test_relaxation_without_an_equilibrium_fails_and_leaves_the_state_unchanged():
     """A free block under a force has no static equilibrium: the damped block drifts,
     the undamped Newton fails, and after t_max the model is back where it started."""
-    from solver.transient import relax
+    from solver.core.transient import relax
     mesh = box(1, 1, 1, (2.0, 2.0, 2.0))
     model = solver.Model(mesh)
     model.add_force(np.arange(mesh.n_nodes), (0.0, 0.0, 1e-4))

@@ -6,10 +6,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 import solver
-from solver.meshgen import box
-from solver.terms.inertia import lumped_masses, passive_tangent
-from solver.transient import Transient
-from solver.units import TISSUE_DENSITY
+from solver.core.meshgen import box
+from solver.core.terms.inertia import lumped_masses, passive_tangent
+from solver.core.transient import Transient
+from solver.core.units import TISSUE_DENSITY
 
 
 def _bar():
@@ -128,9 +128,9 @@ def test_damping_matrix_is_objective_and_positive():
 def test_held_activation_settles_on_the_static_equilibrium():
     """OOP + BUC held at 0.5 on the coarse face (no contact): the transient state reaches
     the static equilibrium within 0.3 s (with beta K0 it crept, 3.3 mm away after 10 s)."""
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
-    from solver.stability import lip_outputs, scene_dict
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
+    from solver.validation.stability import lip_outputs, scene_dict
     sc = scene_dict("held", ("OOP", "BUC"), lips=False, teeth=False)
     sim = Simulation(parse_scene(sc))
     sc["scene"]["analysis"] = "static"
@@ -163,7 +163,7 @@ def test_a_step_repeated_after_set_state_repeats_exactly_with_contact():
     """With lip and teeth contact, two steps from a saved state give the same displacement
     bit for bit, whether the state was reached by stepping or restored by set_state (the
     substep error estimate leaves out the touching nodes, found at the step's start)."""
-    from solver.simulation import Simulation
+    from solver.app.simulation import Simulation
     sim = Simulation("default")
     sim.set_activations({"OOP": 0.8, "RIS": 0.4})
     for _ in range(3):
@@ -182,9 +182,9 @@ def test_a_refused_step_keeps_the_activations_it_started_with(monkeypatch):
     """With hold = "step" every substep runs at the new activations and the first one
     accepted commits them; when a later substep of the same call fails, the refused call
     leaves the whole state (activations included) as it was."""
-    from solver.scene import parse_scene
-    from solver.simulation import Simulation
-    from solver.stability import scene_dict
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
+    from solver.validation.stability import scene_dict
     sim = Simulation(parse_scene(scene_dict("held", ("OOP",), "step", lips=False,
                                             teeth=False)))
     sim.set_activations({"OOP": 0.2})

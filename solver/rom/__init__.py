@@ -17,6 +17,6 @@ check (.trust) that warns or falls back to the full model when the state leaves 
 trained range. solver.rom.reduced is the first, slower implementation: the reference.
 """
 
-from .store import ModelNotTrained, load_model, model_key, model_path, save_model
+from solver.rom.store import ModelNotTrained, load_model, model_key, model_path, save_model
 
 __all__ = ["ModelNotTrained", "load_model", "model_key", "model_path", "save_model"]

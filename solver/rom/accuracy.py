@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
-from ..scene import Schedule
-from .train import drive
+from solver.app.scene import Schedule
+from solver.rom.train import drive
 
 
 def _ramp(m, t0, t1, a, b):

@@ -1,7 +1,7 @@
 r"""Reduced contact for the online step: the penalty contact terms' own kernels, called on
 the few nodes they concern, their forces projected in one numba pass.
 
-The contact terms (solver.terms.contact) assemble on full-size arrays; the reduced model
+The contact terms (solver.face.terms.contact) assemble on full-size arrays; the reduced model
 needs only their slave (and, for lip contact, master) nodes. Per term an adapter:
 
 * RigidContact (lips and cheeks on the teeth): the term's kernel (rigid_contact, with
@@ -33,13 +33,13 @@ tests/test_rom_online.py checks the adapters against the terms' assemble().
 
 import numpy as np
 
-from ..assembly import block_dofs
-from ..kernels.contact import rigid_contact, surface_contact, surface_normals
-from ..terms.base import State
-from ..terms.contact import pair_maps
-from .contact_kernels import (fill_positions, mirror_normals, project_pairs, project_slaves,
-                              short_lists, slave_positions)
-from .online_kernels import project_nodal
+from solver.core.assembly import block_dofs
+from solver.core.kernels.contact import rigid_contact, surface_contact, surface_normals
+from solver.core.terms.base import State
+from solver.face.terms.contact import pair_maps
+from solver.rom.contact_kernels import (fill_positions, mirror_normals, project_pairs,
+                                        project_slaves, short_lists, slave_positions)
+from solver.rom.online_kernels import project_nodal
 
 
 class _Rigid:
@@ -201,7 +201,7 @@ class _Generic:
 
 
 def _adapter(term, V, Vn, delta, generic):
-    from ..terms.contact import LipContact, RigidContact
+    from solver.face.terms.contact import LipContact, RigidContact
     if not generic:
         try:
             if type(term) is RigidContact:
@@ -214,7 +214,7 @@ def _adapter(term, V, Vn, delta, generic):
 
 
 class ReducedContact:
-    """The contact terms of a face, reduced. terms: contact terms (solver.terms.contact);
+    """The contact terms of a face, reduced. terms: contact terms (solver.face.terms.contact);
     V (3 n, r) the basis; delta (mm): slave motion before the rigid candidate lists are
     rebuilt; generic: every term through its assemble() (the reference path)."""
 

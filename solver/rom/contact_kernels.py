@@ -1,6 +1,6 @@
 """Numba helpers of the reduced contact (solver.rom.contact): geometry and bookkeeping only.
 
-The contact law itself stays in solver.kernels.contact, called from Python: a cached
+The contact law itself stays in solver.core.kernels.contact, called from Python: a cached
 numba function that called those kernels would keep their compiled code when that file
 changes (numba's cache checks only the caller's own file), so nothing here calls them.
 """
@@ -118,7 +118,7 @@ def short_lists(x, cen, rad, xv, tris, delta, depth, ptr, out, dist):
 def mirror_normals(en, me_t, me_j, vn, mv):
     """On a half model's mirror edges (me_t, me_j) and vertices mv: the pseudo-normals of
     the surface with its mirror image, x component zeroed and renormalised (as
-    solver.terms.contact's _Normals.update does after surface_normals)."""
+    solver.face.terms.contact's _Normals.update does after surface_normals)."""
     for k in range(me_t.shape[0]):
         n = en[me_t[k], me_j[k]]
         n[0] = 0.0

@@ -1,6 +1,6 @@
 r"""Numba kernels of the damping's passive small-strain stiffness K_n on a shape.
 
-K_n = sum_e int B_n^T D0 B_n dv_n on the shape X + u (solver.terms.inertia.passive_tangent):
+K_n = sum_e int B_n^T D0 B_n dv_n on the shape X + u (solver.core.terms.inertia.passive_tangent):
 with F the deformation gradient of u, dN/dx = dN/dX F^-1, dv = w det F, B_n the small-strain
 B of dN/dx, D0 the law's tangent at C = 1 (per brick, solver.rom.online.small_strain_tangents)
 and, for mean dilatation, + U''(1) / V dv dv^T with dv = sum_g w det F dN/dx.

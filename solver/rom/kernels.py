@@ -8,9 +8,9 @@ coordinates q (r,):
     f_r = sum_e w_e V_e^T (f_e(u_e) + s_e f^s_e(u_e)),
     K_r = sum_e w_e V_e^T (K_e(u_e) + s_e K^s_e(u_e)) V_e,
 
-with f_e, K_e the tissue brick (solver.kernels.brick, mean dilatation) and f^s_e, K^s_e
+with f_e, K_e the tissue brick (solver.core.kernels.brick, mean dilatation) and f^s_e, K^s_e
 the stiffening brick of unit factor (isochoric, plain trilinear, c10 and c20 of the
-tissue, as solver.terms.stiffening) scaled by s_e = k_e(a) - 1 >= 0. The stiffening
+tissue, as solver.face.terms.stiffening) scaled by s_e = k_e(a) - 1 >= 0. The stiffening
 energy is linear in its (c10, c20), so one unit-factor evaluation times s_e is the
 stiffening term's contribution exactly. Serial: a few dozen bricks do not pay for
 threads. Returns the smallest det F (<= 0: an inverted brick, the state is refused).
@@ -19,7 +19,7 @@ threads. Returns the smallest det F (<= 0: an inverted brick, the state is refus
 import numpy as np
 from numba import njit
 
-from ..kernels.brick import _element
+from solver.core.kernels.brick import _element
 
 
 @njit(cache=True)

@@ -21,11 +21,11 @@ active sets (taut cables, contact slaves) of that evaluation, which the Newton i
 
 import numpy as np
 
-from ..kernels.material_point import point_response
-from .contact import ReducedContact
-from .damping_kernels import damping_geometry, passive_stiffness_r
-from .kernels import brick_tangents_split
-from .online_kernels import brick_forces_r, cable_forces_r
+from solver.core.kernels.material_point import point_response
+from solver.rom.contact import ReducedContact
+from solver.rom.damping_kernels import damping_geometry, passive_stiffness_r
+from solver.rom.kernels import brick_tangents_split
+from solver.rom.online_kernels import brick_forces_r, cable_forces_r
 
 
 def small_strain_tangents(params, form):

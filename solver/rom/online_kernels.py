@@ -10,12 +10,12 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
     stresses add into one: S = S_iso(p + s_e p^s) (+ S_vol of the tissue, for the
     'full' formulation; the stiffening has d = inf: no volumetric part). Exact;
   - first Piola-Kirchhoff P = F S, so f_ai = sum_g w_g sum_J P_iJ dN_a/dX_J (no B matrix);
-  - S = 2 (W_1 1 + W_2 (I1 1 - C) + W_3 adj C) with adj C = I3 C^-1 (solver.kernels.
+  - S = 2 (W_1 1 + W_2 (I1 1 - C) + W_3 adj C) with adj C = I3 C^-1 (solver.core.kernels.
     invariants' chain rule, first derivatives only);
   - mean dilatation: dv/dx_ai = sum_g w_g (dN_a/dX adj F)_i, f += U'(v / V) dv/dx.
 * ``cable_forces_r``: every cable, reduced: x_q - x_p = d0_c + D_c q,
   f_r = sum_c T_c D_c^T n_c, and optionally K_r = sum_c D_c^T (AE/L0 n n^T
-  + T/l (1 - n n^T)) D_c (solver.kernels.cable's law, projected).
+  + T/l (1 - n n^T)) D_c (solver.core.kernels.cable's law, projected).
 * ``project_nodal``: f_r += sum_i V_i^T f_i and K_r += sum_i V_i^T K_i V_i over the rows i
   of a set of node blocks whose force is non-zero (contact).
 * ``brick_forces_full``: the same brick forces unreduced, on the whole mesh (the trust

@@ -1,9 +1,9 @@
 """The lip outputs of a reduced state, read from the few nodes they need.
 
-solver.face.FaceModel.lip_outputs(u) on u = V q reconstructs every node; the measures
+solver.face.face_model.FaceModel.lip_outputs(u) on u = V q reconstructs every node; the measures
 read only the mid-sagittal lip contours and a few landmarks. LipOutputs reconstructs
 those nodes (V restricted to them, once) and computes the same measures: the aperture by
-a numba transcription of solver.aperture.contour_gap (same formulas; tests compare the
+a numba transcription of solver.face.aperture.contour_gap (same formulas; tests compare the
 two), the protrusions and the width as lip_outputs does.
 """
 
@@ -13,7 +13,7 @@ from numba import njit
 
 @njit(cache=True)
 def _seg_dist(a0, a1, q0, q1):
-    """Distance from the point a to the segment q0 q1 (solver.aperture._point_segment)."""
+    """Distance from the point a to the segment q0 q1 (solver.face.aperture._point_segment)."""
     d0, d1 = q1[0] - q0[0], q1[1] - q0[1]
     w0, w1 = a0 - q0[0], a1 - q0[1]
     s = (w0 * d0 + w1 * d1) / max(d0 * d0 + d1 * d1, 1e-300)
@@ -24,7 +24,7 @@ def _seg_dist(a0, a1, q0, q1):
 
 @njit(cache=True)
 def contour_gap(yz, upper, lower):
-    """solver.aperture.contour_gap: the smallest distance (mm) between the segments upper
+    """solver.face.aperture.contour_gap: the smallest distance (mm) between the segments upper
     (ku, 2) and lower (kl, 2) (node ids into yz (n, 2)); 0 where two cross."""
     best = np.inf
     for i in range(upper.shape[0]):

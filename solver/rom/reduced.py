@@ -5,7 +5,7 @@ same quantities, checked against it by tests/test_rom_online.py), also used in t
 
 With the basis V (3 n, r) (orthonormal on the free DOFs, zero rows on the constrained
 ones) the displacements are u = V q. Backward Euler from (q_n, v_n) with step h, the
-same scheme as the full model (solver.transient), projected (Galerkin):
+same scheme as the full model (solver.core.transient), projected (Galerkin):
 
     R(q) = M_r (q - q_n - h v_n) / h^2 + C_r (q - q_n) / h
            + f_bricks(q, a) + f_cables(q, a) + f_contact(q) = 0,
@@ -14,16 +14,16 @@ same scheme as the full model (solver.transient), projected (Galerkin):
 * inertia: M_r = V^T M V (lumped M, exact);
 * damping: C_r = alpha M_r + beta V^T K_n V, K_n the passive tissue's small-strain
   stiffness on the shape at the start of the substep by the cubature
-  (passive_stiffness), as the full model (solver/terms/inertia.py); or the constant rest
+  (passive_stiffness), as the full model (solver/core/terms/inertia.py); or the constant rest
   one, K_0 (damping "rest"). The stepping (solver.rom.stepper) decides when it is built;
   the fast online step (solver.rom.online) applies it matrix-free;
 * tissue and activation stiffening: the ECSW cubature (solver.rom.ecsw) over the selected
   bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels);
 * cables (all, exactly): cable c pulls its end points x_p, x_q, with
   x_q - x_p = d0_c + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a) (3, r); with l, n, the
-  tension T = AE (l / L0 - 1 + e_c(a))^+ (solver.kernels.cable):
+  tension T = AE (l / L0 - 1 + e_c(a))^+ (solver.core.kernels.cable):
   f_r = sum_c T D_c^T n, K_r = sum_c D_c^T (AE/L0 n n^T + T/l (I - n n^T)) D_c;
-* contact (reduced contact): the penalty contact terms themselves (solver.terms.contact),
+* contact (reduced contact): the penalty contact terms themselves (solver.face.terms.contact),
   evaluated on displacements reconstructed at their slave and master nodes only, their
   element forces and tangents projected with the rows of V of those nodes:
   f_r = sum_b V_b^T f_b, K_r = sum_b V_b^T K_b V_b.
@@ -31,9 +31,9 @@ same scheme as the full model (solver.transient), projected (Galerkin):
 
 import numpy as np
 
-from ..assembly import block_dofs
-from ..terms.base import State
-from .kernels import reduced_bricks
+from solver.core.assembly import block_dofs
+from solver.core.terms.base import State
+from solver.rom.kernels import reduced_bricks
 
 
 class _Capture:
@@ -49,7 +49,7 @@ class _Capture:
 class ReducedOperator:
     """The reduced forces of a face Simulation (its terms, anatomy and activations).
 
-    sim: solver.simulation.Simulation (transient); V (3 n, r); bricks (k,) the cubature's
+    sim: solver.app.simulation.Simulation (transient); V (3 n, r); bricks (k,) the cubature's
     brick indices and weights (k,); M_r, C_r (r, r)."""
 
     def __init__(self, sim, V, bricks, weights, M_r, C_r):
@@ -92,7 +92,7 @@ class ReducedOperator:
         self.stiffening = st
 
     def stiffening_factors(self, a):
-        """(k,) s_e = k_e(a) - 1 of the selected bricks (solver.terms.stiffening)."""
+        """(k,) s_e = k_e(a) - 1 of the selected bricks (solver.face.terms.stiffening)."""
         if self.stiffening is None:
             return np.zeros(len(self.bricks))
         k = self.face.properties.stiffening_factor(a)
@@ -109,7 +109,7 @@ class ReducedOperator:
         self.d0 = cab.X[:, 1] - cab.X[:, 0]
         self.AE, self.L0 = cab.AE, cab.L0
         props = face.properties
-        from ..anatomy.base import MUSCLE_NAMES
+        from solver.face.anatomy.base import MUSCLE_NAMES
         self.cab_muscle = cab.muscle
         # active strain e_c = a_m * (force scale * eps_c) (MuscleProperties.active_strain)
         self.cab_unit = np.array([props.active_strain(MUSCLE_NAMES[m], 1.0)
@@ -197,8 +197,8 @@ class ReducedOperator:
 
     def passive_stiffness(self, q):
         """V^T K_n V by the cubature: the passive tissue's small-strain stiffness on the
-        shape X + V q (as solver.terms.inertia.Damping's K_n), (r, r)."""
-        from ..element import reference_geometry
+        shape X + V q (as solver.core.terms.inertia.Damping's K_n), (r, r)."""
+        from solver.core.element import reference_geometry
         conn = self.mesh.bricks[self.bricks]
         x = self.mesh.nodes[conn] + np.einsum("kdr,r->kd", self.Ve, q).reshape(-1, 8, 3)
         loc = np.arange(8 * len(conn)).reshape(-1, 8)

@@ -1,7 +1,7 @@
 r"""`open_simulation(scene, fidelity="realtime")`: the reduced model behind Simulation's API.
 
 The full-order Simulation of the scene is built as usual (coarse generic half face,
-solver.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
+solver.app.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
 outputs, and it is the fallback. Its reduced model (solver.rom.store) is looked up by the
 scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
 `python build_fmu.py --rom`), then in the user cache; where there is none,
@@ -21,7 +21,7 @@ stiffness on the shape at the start of a substep, hyper-reduced by the cubature
 (V^T K_n V ~ sum_e w_e V_e^T K_n,e V_e) and rebuilt every `damping_refresh` substeps
 (damping="current", default); damping="rest" keeps the constant V^T K_0 V (cheaper, but
 0.3-0.6 mm off the full model on training patterns: the rest K_0 damps turned tissue
-with the bulk modulus, solver/terms/inertia.py).
+with the bulk modulus, solver/core/terms/inertia.py).
 
 Trust check (solver.rom.trust): every `check_every` substeps, the full-order residual of
 the reduced solution u = V q on the free DOFs, with inertia and damping, relative to the
@@ -39,16 +39,16 @@ import warnings
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..fidelity import REDUCED, apply_fidelity
-from ..simulation import Simulation, resolve_scene
-from ..transient import StepStats
-from ..units import kg_per_m3
-from .reduced import ReducedOperator
-from .stepper import METHODS, Stepper
-from .store import ModelNotTrained, find_model, load_model, model_path
-from .outputs import LipOutputs
-from .trust import TrustCheck
+from solver.core.errors import ParameterError
+from solver.app.fidelity import REDUCED, apply_fidelity
+from solver.app.simulation import Simulation, resolve_scene
+from solver.core.transient import StepStats
+from solver.core.units import kg_per_m3
+from solver.rom.reduced import ReducedOperator
+from solver.rom.stepper import METHODS, Stepper
+from solver.rom.store import ModelNotTrained, find_model, load_model, model_path
+from solver.rom.outputs import LipOutputs
+from solver.rom.trust import TrustCheck
 
 TRUST_MODES = ("fallback", "warn", "off")
 
@@ -97,7 +97,7 @@ class ReducedSimulation(Simulation):
             except ModelNotTrained:
                 if not rom_train:
                     raise
-                from .train import train
+                from solver.rom.train import train
                 print(f"facefmu: no realtime model for scene {sc.name!r}; training one "
                       f"(full-order snapshot runs, minutes) into {model_path(sc)}", flush=True)
                 arrays, meta = load_model(train(sc, sim=self))

@@ -15,7 +15,7 @@ Two Newton methods, for the same equations:
 * "fast" (default): modified Newton on solver.rom.online.OnlineOperator.
   - The damping force beta V^T K_n V (q - q_n) / h is evaluated matrix-free at every
     iteration, K_n on the shape at q_n of this substep: exact, as the full model, which
-    rebuilds K_n every substep (solver/terms/inertia.py).
+    rebuilds K_n every substep (solver/core/terms/inertia.py).
   - The tangent J = M_r / h^2 + alpha M_r / h + (beta / h) Kn + K_bricks + K_switch is
     kept, inverted, across iterations and substeps: Kn and K_bricks from some earlier
     shape (K_bricks split so that it follows the activations exactly:
@@ -49,7 +49,7 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
-from .online import OnlineOperator
+from solver.rom.online import OnlineOperator
 
 METHODS = ("fast", "reference")
 
@@ -111,7 +111,7 @@ class Stepper:
 
     # -- substeps -------------------------------------------------------------------------
     def advance(self, q, v, act, t0, t_end, stats):
-        """Substeps from (q, v) at t0 to t_end (activations act: solver.activation, ramping
+        """Substeps from (q, v) at t0 to t_end (activations act: solver.face.activation, ramping
         over the step); (ok, q, v). stats: a StepStats to fill."""
         span = t_end - t0
         n = max(1, int(math.ceil(span / self.h_max * (1.0 - 1e-9))))

@@ -7,7 +7,7 @@ key (`model_key`); its hash names the file, and the key itself is stored in the 
 checked on loading, so a model is never used for another face or another set of effects
 (nor after the full-order physics changed: PHYSICS).
 
-Cache folder: <user cache>/rom (solver._cache.user_cache_dir: $FACEFMU_CACHE_DIR, else
+Cache folder: <user cache>/rom (solver.core._cache.user_cache_dir: $FACEFMU_CACHE_DIR, else
 $XDG_CACHE_HOME/facefmu, else ~/.cache/facefmu), or $FACEFMU_ROM_DIR. Files are plain
 numpy .npz (no pickles) that can be copied and shipped; `load_model(path)` reads one
 from anywhere.
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._cache import user_cache_dir
-from ..errors import FaceFMUError
-from ..terms.contact import PENALTY
+from solver.core._cache import user_cache_dir
+from solver.core.errors import FaceFMUError
+from solver.face.terms.contact import PENALTY
 
 FORMAT = 1
 # The full-order physics a model's snapshots came from: bumped when a term's forces change
@@ -47,13 +47,13 @@ class ModelNotTrained(FaceFMUError, LookupError):
 
 
 def model_key(scene):
-    """The fields of a solver.scene.Scene that a reduced model depends on (a dict)."""
+    """The fields of a solver.app.scene.Scene that a reduced model depends on (a dict)."""
     anatomy = scene.anatomy
     rows = scene.rows
     if anatomy != "generic":
         anatomy = str(Path(anatomy).resolve())
     else:                             # a level's own rows, given or not, are one model
-        from ..anatomy.generic import LEVELS
+        from solver.face.anatomy.generic import LEVELS
         if rows == LEVELS[scene.level][1]:
             rows = None
     return {"format": FORMAT, "physics": PHYSICS, "anatomy": anatomy, "level": scene.level if
@@ -131,7 +131,7 @@ def find_model(scene, folders=()):
             return load_model(path, model_key(scene))
     k = model_key(scene)
     where = ", ".join(str(p.parent) for p in paths)
-    from ..simulation import builtin_scenes
+    from solver.app.simulation import builtin_scenes
     name = scene.name if scene.name in builtin_scenes() else "SCENE"
     raise ModelNotTrained(
         f"no trained realtime model for scene {scene.name!r} (anatomy {k['anatomy']}, "

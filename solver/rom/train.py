@@ -23,12 +23,12 @@ import time
 
 import numpy as np
 
-from ..anatomy.base import MUSCLE_NAMES
-from ..scene import Schedule
-from .ecsw import ecsw, scale_rows
-from .kernels import element_forces
-from .pod import captured_energy, pod_basis
-from .store import model_key, model_path, save_model
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.app.scene import Schedule
+from solver.rom.ecsw import ecsw, scale_rows
+from solver.rom.kernels import element_forces
+from solver.rom.pod import captured_energy, pod_basis
+from solver.rom.store import model_key, model_path, save_model
 
 
 def _pwl(muscle, times, values):
@@ -41,7 +41,7 @@ def _pwl(muscle, times, values):
 
 
 def random_schedules(rng, muscles, duration, primary=None):
-    """A random activation pattern: a tuple of solver.scene.Schedule (module docstring).
+    """A random activation pattern: a tuple of solver.app.scene.Schedule (module docstring).
     primary: a muscle that takes part at a high level (U(0.6, 1))."""
     muscles = list(muscles)
     out = []
@@ -95,10 +95,10 @@ def drive(sim, schedules, duration, interval, on_record=None, max_wall=None):
 def snapshot_task(task, scene, sim=None):
     """One full-order snapshot run (a dask task): task {"label", "schedules", "duration",
     "interval", "max_wall" (optional, s: the run stops there, keeping its snapshots),
-    **Simulation keyword arguments}; scene a solver.scene.Scene; sim: a full-order
+    **Simulation keyword arguments}; scene a solver.app.scene.Scene; sim: a full-order
     Simulation of scene to reuse (reset to rest). Returns {"label", "U" (3 n, s)
     displacements, "A" (s, 10) activations, "rows", "wall_s", "error"}."""
-    from ..simulation import Simulation
+    from solver.app.simulation import Simulation
     out = {"label": task.get("label", ""), "error": ""}
     kw = {k: v for k, v in task.items()
           if k not in ("label", "schedules", "duration", "interval", "max_wall")}
@@ -201,7 +201,7 @@ def collect(scene, tasks, client=None, progress=True, sim=None, folder=None, bud
 
 def brick_data(sim, V):
     """All bricks as a solver.rom.reduced.ReducedOperator (weights 1)."""
-    from .reduced import ReducedOperator
+    from solver.rom.reduced import ReducedOperator
     r = V.shape[1]
     n = sim.anatomy.mesh.n_bricks
     return ReducedOperator(sim, V, np.arange(n), np.ones(n), np.zeros((r, r)),
@@ -231,8 +231,8 @@ def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None):
 
 def reduced_matrices(sim, V):
     """(M_r, K0_r): V^T M V with the lumped masses, V^T K_0 V (rest passive tangent)."""
-    from ..terms.inertia import lumped_masses, passive_tangent
-    from ..units import kg_per_m3
+    from solver.core.terms.inertia import lumped_masses, passive_tangent
+    from solver.core.units import kg_per_m3
     mesh = sim.anatomy.mesh
     m3 = np.repeat(lumped_masses(mesh, kg_per_m3(sim.scene.density)), 3)
     M_r = V.T @ (m3[:, None] * V)
@@ -249,16 +249,16 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
     runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept)."""
-    from ..simulation import Simulation
+    from solver.app.simulation import Simulation
     t_start = time.perf_counter()
     if sim is None:
-        from ..fidelity import apply_fidelity
+        from solver.app.fidelity import apply_fidelity
         scene = apply_fidelity(scene, "realtime")
         sim = Simulation(scene)
     scene = sim.scene
     base = scene.with_overrides(schedules=())
     tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall)
-    from .store import cache_dir, key_hash
+    from solver.rom.store import cache_dir, key_hash
     folder = cache_dir() / "snapshots" / key_hash(model_key(base))
     results = collect(base, tasks, client, progress, sim, None if sim_only else folder,
                       budget)
@@ -301,7 +301,7 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
 def calibrate(scene, model, tasks, results, sim=None):
     """Run the reduced model on training patterns: the largest trust residual rho and
     the largest differences to the full runs (displacement, lip aperture, protrusion)."""
-    from .simulation import ReducedSimulation
+    from solver.rom.simulation import ReducedSimulation
     rom = ReducedSimulation(scene, loaded_anatomy=sim.anatomy if sim else None,
                             rom_model=model, trust="off")
     rho, du, dap, dpr = [0.0], [0.0], [0.0], [0.0]

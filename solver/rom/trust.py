@@ -7,7 +7,7 @@ After a substep from (q_n, v_n) with step h, on the free DOFs, with inertia and 
         + contact,
     rho = |R_free| / max(|f_tissue|, |f_cables|, 1e-3 N),
 
-the cables and contact by the full model's own terms (solver.system.System, built once, at
+the cables and contact by the full model's own terms (solver.core.system.System, built once, at
 construction), the tissue and stiffening bricks of the whole mesh by
 solver.rom.online_kernels.brick_forces_full (the same forces as the elasticity and
 stiffening terms: tests/test_rom_online.py); K_n (u - u_n) is applied without forming the
@@ -18,12 +18,12 @@ model was trained on (solver.rom.simulation).
 
 import numpy as np
 
-from ..assembly import Assembly
-from ..system import System
-from ..terms.inertia import lumped_masses, passive_tangent
-from .online import small_strain_tangents
-from .damping_kernels import passive_apply
-from .online_kernels import brick_forces_full
+from solver.core.assembly import Assembly
+from solver.core.system import System
+from solver.core.terms.inertia import lumped_masses, passive_tangent
+from solver.rom.online import small_strain_tangents
+from solver.rom.damping_kernels import passive_apply
+from solver.rom.online_kernels import brick_forces_full
 
 
 class TrustCheck:
@@ -49,7 +49,7 @@ class TrustCheck:
         if damping == "current":
             self.D0, self.kvol = small_strain_tangents(el.params, el.form)
         else:
-            from ..kernels.scatter import scatter_matrices
+            from solver.core.kernels.scatter import scatter_matrices
             pattern = self.sysm_all.pattern
             asm = Assembly(pattern, True)
             scatter_matrices(passive_tangent(el), pattern.index[0], asm.data)

@@ -1,8 +1,0 @@
-"""Face anatomies: the procedural generic face and the published ANSYS reference face."""
-
-from .ansys import load_ansys_face
-from .base import (LANDMARK_NAMES, MUSCLE_FULL_NAMES, MUSCLE_NAMES, Anatomy, Fibre,
-                   RigidSurface)
-
-__all__ = ["Anatomy", "Fibre", "RigidSurface", "MUSCLE_NAMES", "MUSCLE_FULL_NAMES",
-           "LANDMARK_NAMES", "load_ansys_face"]

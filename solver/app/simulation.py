@@ -1,0 +1,233 @@
+"""A simulation: a scene's anatomy, terms and analysis behind one small runtime API.
+
+    sim = Simulation("rounding_u")              # a built-in scene, a file path or a Scene
+    sim.set_activations({"OOP": 0.6})
+    stats = sim.step(sim.t + 0.01)              # transient: adaptive substeps to the time
+    sim.outputs()                               # lip measures (mm) and solver statistics
+    state = sim.get_state(); sim.set_state(state)
+
+This is what the FMU and the command line drive; it holds no physics of its own.
+A step that fails (after every cutback) leaves the simulation at its last good state
+and returns stats with converged = False. Simulation is the full model at any fidelity;
+the reduced-order one (fidelity "realtime") is solver.rom.simulation.ReducedSimulation,
+and solver.entry.open_simulation opens whichever a fidelity asks for.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.face.anatomy.load import load_anatomy
+from solver.core.errors import ParameterError
+from solver.app.extras import need
+from solver.face.face_model import FaceModel
+from solver.app.fidelity import REDUCED, apply_fidelity
+from solver.core.materials import MooneyRivlin
+from solver.face.muscles import MuscleProperties
+from solver.app.scene import GRAVITY, Scene, load_scene
+from solver.core.transient import StepStats, Transient
+from solver.core.units import kg_per_m3
+
+BUILTIN_DIR = Path(__file__).parent / "scenes"
+
+
+def builtin_scenes():
+    """Names of the built-in scenes."""
+    return sorted(p.stem for p in BUILTIN_DIR.glob("*.toml"))
+
+
+def resolve_scene(scene):
+    """A Scene from a Scene, a built-in name or a TOML path."""
+    if isinstance(scene, Scene):
+        return scene
+    path = BUILTIN_DIR / f"{scene}.toml"
+    if path.is_file():
+        return load_scene(path)
+    return load_scene(scene)
+
+
+def _contact_terms(anatomy, scene, jaw=None):
+    from solver.face.terms.contact import build_contact_terms
+    return build_contact_terms(anatomy, lips=scene.lip_contact, teeth=scene.teeth_contact,
+                               lip_penalty=scene.lip_penalty, jaw=jaw)
+
+
+class Simulation:
+    """The full model. scene: Scene, built-in name or TOML path; fidelity: a preset name
+    of solver.app.fidelity (applied before the overrides; a reduced-order one such as
+    "realtime" is refused: solver.entry.open_simulation opens it); overrides: Scene fields
+    to replace; loaded_anatomy: an Anatomy already in memory (instead of loading the
+    scene's). A scene file that names "realtime" gets the full model at the realtime
+    knobs here."""
+
+    def __init__(self, scene="default", loaded_anatomy=None, fidelity=None, **overrides):
+        if fidelity in REDUCED:
+            raise ParameterError(f"fidelity {fidelity!r} is a reduced-order model, which "
+                                 "Simulation does not build: open it with "
+                                 f"solver.open_simulation(scene, fidelity={fidelity!r})")
+        scene = resolve_scene(scene)
+        if fidelity is not None:
+            scene = apply_fidelity(scene, fidelity)
+        if str(overrides.get("anatomy", "generic")) != "generic" and "rows" not in overrides:
+            overrides["rows"] = None        # the scene's rows (e.g. its preset's) set the
+                                            # generic mesh; an ANSYS face keeps its own
+        self.scene = scene.with_overrides(**overrides) if overrides else scene
+        sc = self.scene
+        self.anatomy = loaded_anatomy or load_anatomy(sc.anatomy, sc.level, sc.half, sc.rows)
+        props = MuscleProperties(force_scale={m: sc.force_scale.get(m, 1.0)
+                                              for m in MUSCLE_NAMES},
+                                 stiffening_rule=sc.stiffening_rule, **sc.muscle_constants())
+        self.face = FaceModel(self.anatomy, MooneyRivlin(), muscles=sc.driven,
+                              stiffening=sc.stiffening, properties=props,
+                              formulation=sc.formulation, linear_solver=sc.linear_solver)
+        model = self.face.model
+        model.newton_options.rtol = sc.newton_rtol
+        model.newton_options.utol = sc.newton_utol
+        density = kg_per_m3(sc.density)
+        if GRAVITY[sc.gravity] is not None:
+            from solver.core.terms.gravity import Gravity
+            model.add_term(Gravity(self.anatomy.mesh, density, GRAVITY[sc.gravity],
+                                   g=sc.g * 1e3))
+        self.contact = []
+        if sc.lip_contact or sc.teeth_contact:
+            self.contact = _contact_terms(self.anatomy, sc, self.face.jaw)
+            for term in self.contact:
+                model.add_term(term)
+        if GRAVITY[sc.gravity] is not None:          # start from the rest state under gravity
+            res = self.face.solve_static()
+            if not res.converged:
+                raise RuntimeError(f"no equilibrium under gravity: {res.reason}")
+        self.integrator = None
+        if sc.analysis == "transient":
+            self.integrator = Transient(model, density, sc.alpha, sc.beta, sc.inertia,
+                                        sc.damping, sc.substep_tol, sc.max_substep,
+                                        sc.min_substep, sc.hold)
+        self.t = 0.0
+        self.last = StepStats()
+
+    @property
+    def term_names(self):
+        """The model's terms, by name, in the order the solver walks them."""
+        return self.face.term_names
+
+    def set_activations(self, values):
+        """Target activations for the next step: dict muscle -> a in [0, 1] (the others
+        keep theirs); a bad value raises ParameterError naming it, nothing changed."""
+        self.face.set_activations(values)
+
+    def set_jaw(self, opening=None, protrusion=None):
+        """Target jaw opening (deg, about the TMJ axis) and protrusion (mm, along the
+        occlusal plane) for the next step (solver.face.jaw); None keeps one. Values outside
+        solver.face.jaw.JAW_RANGES raise ParameterError and change nothing."""
+        self.face.set_jaw(opening, protrusion)
+
+    @property
+    def jaw(self):
+        """(opening deg, protrusion mm) of the last converged state; (0, 0) without a jaw."""
+        j = self.face.jaw
+        return (0.0, 0.0) if j is None else (float(j.start[0]), float(j.start[1]))
+
+    def step(self, t_end):
+        """Advance to t_end (transient) or solve the equilibrium (static); StepStats."""
+        if self.integrator is not None:
+            self.integrator.t = self.t
+            start = self.face.activation.start.copy()
+            stats = self.integrator.advance(t_end)
+            if not stats.converged:
+                # a substep at the full activations (hold "step") committed them before
+                # a later one failed: the state goes back to the call's start
+                self.face.activation.start = start
+            self.face.end_step(stats.converged)
+        else:
+            res = self.face.solve_static()
+            rel = res.relaxation
+            stats = StepStats(converged=res.converged,
+                              substeps=len(res.steps) + (rel.substeps if rel else 0),
+                              newton_iterations=res.iterations
+                              + (rel.newton_iterations if rel else 0),
+                              cutbacks=res.cutbacks, reason=res.reason)
+        if stats.converged:
+            self.t = float(t_end)
+        self.last = stats
+        return stats
+
+    def outputs(self):
+        """dict: the lip measures (mm, solver.face.face_model.FaceModel.lip_outputs), incisor_opening
+        (mm), contact_force (N), the last step's solver statistics, and with the record
+        'muscle_strains' each driven muscle's extreme principal strains."""
+        out = self.face.lip_outputs()
+        out["incisor_opening"] = self.face.incisor_opening()
+        out["contact_force"] = float(sum(getattr(t, "total_force", 0.0) for t in self.contact))
+        out["newton_iterations"] = self.last.newton_iterations
+        out["substeps"] = self.last.substeps
+        out["cutbacks"] = self.last.cutbacks
+        if "muscle_strains" in self.scene.record:
+            for m, (lo, hi) in self.face.region_strains().items():
+                out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
+        return out
+
+    def run(self, progress=False, on_record=None):
+        """A standalone run of the scene's schedules: records (list of dicts) at every
+        output interval up to the scene's duration. on_record(sim, row) is called at each."""
+        sc = self.scene
+        times = np.arange(1, int(round(sc.duration / sc.interval)) + 1) * sc.interval
+        rows = [self._record()]
+        if on_record:
+            on_record(self, rows[0])
+        iterator = times
+        if progress:
+            tqdm = need("tqdm", "sweep", "a progress bar (Simulation.run(progress=True))").tqdm
+            iterator = tqdm(times, desc=sc.name, unit="record")
+        for t in iterator:
+            self.set_activations(sc.activations(t))
+            jaw = sc.jaw(t)
+            if jaw:
+                self.set_jaw(jaw.get("jaw_opening"), jaw.get("jaw_protrusion"))
+            stats = self.step(float(t))
+            if not stats.converged:
+                raise RuntimeError(f"scene {sc.name}: step to t = {t:.4g} s failed: "
+                                   f"{stats.reason}")
+            rows.append(self._record())
+            if on_record:
+                on_record(self, rows[-1])
+        return rows
+
+    def _record(self):
+        out = self.outputs()
+        row = {"time": self.t}
+        row.update({k: v for k, v in out.items() if k in self.scene.record
+                    or (k.startswith("strain_") and "muscle_strains" in self.scene.record)})
+        row.update(self.face.activation.as_dict(self.face.activation.start))
+        if self.scene.jaw(0.0):
+            row["jaw_opening"], row["jaw_protrusion"] = self.jaw
+            row["incisor_opening"] = out["incisor_opening"]
+        return row
+
+    def release(self):
+        """Free the linear solver's native memory (the simulation stays usable)."""
+        release = getattr(self.face.model.linear_solver, "release", None)
+        if release:
+            release()
+
+    def get_state(self):
+        """Everything needed to resume: copies of arrays, plain floats."""
+        v = self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)
+        return {"t": self.t, "u": self.face.u.copy(), "v": v.copy(),
+                "activation": self.face.activation.start.copy(),
+                "jaw": np.array(self.jaw),
+                "h": self.integrator.h if self.integrator is not None else 0.0}
+
+    def set_state(self, state):
+        """Resume from a get_state dict: time, displacements, velocities, activations,
+        jaw pose and substep size."""
+        self.t = float(state["t"])
+        self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
+        self.face.activation.start = np.array(state["activation"], dtype=float)
+        self.face.activation.target = self.face.activation.start.copy()
+        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
+        self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
+        if self.integrator is not None:
+            self.integrator.v = np.array(state["v"], dtype=float).reshape(-1, 3)
+            self.integrator.h = float(state["h"])
+            self.integrator.t = self.t

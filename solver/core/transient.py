@@ -1,0 +1,376 @@
+r"""Implicit time stepping: backward Euler with error-controlled adaptive substeps.
+
+Why backward Euler: the face is strongly overdamped (with alpha = 40 1/s and beta = 0.03 s
+every mode has a damping ratio >= 1.1) and stiff (K/mu = 500), so the integrator must be
+L-stable: high modes are damped out, never amplified, whatever the step. Backward Euler is
+L-stable and first order; it dissipates energy (with alpha = beta = 0 a released block
+oscillates with a decaying amplitude: for a mode of frequency w the amplitude shrinks by
+1/sqrt(1 + (w h)^2) per step and the frequency is low by about (w h)^2 / 3).
+
+Equations for the step t_n -> t_n + h, with u = u_{n+1}:
+v_{n+1} = (u - u_n)/h, a_{n+1} = (v_{n+1} - v_n)/h and M a + C v + f_int(u) = f_ext,
+solved by Newton (solver.core.newton) with the inertia and damping terms.
+
+Substeps: a caller's step [t0, t1] is split as needed and lands exactly on t1. Loads (the
+activations, prescribed displacements, forces) ramp linearly from their values at t0 to
+their targets at t1 (``hold="ramp"``, a first-order hold) or jump at t0 (``hold="step"``).
+Local error estimate of a substep: err = h/2 ||v_{n+1} - v_n||_inf (mm), the difference
+between backward and forward Euler displacements; a substep is accepted when
+err <= tol, and the next step is h * clip(0.9 sqrt(tol / err), 0.3, 2), at most max_substep.
+Nodes in contact are left out: those that a nonsmooth term (contact, ``Term.nonsmooth``)
+pushed on at either end of the substep. Their velocity jumps at an impact or a release and,
+while they touch, follows the penalty's stiff mode (a penalty stops a node within
+sqrt(m / k), microseconds), which no step resolves; the estimate there would only shrink
+the steps (on the paper-level gesture of benchmarks/fast_path.py such a node holds the
+largest estimate in nearly every rejected substep). The rest of the face, the neighbours
+of those nodes included, still sets it; leaving the contact nodes out moves the lip
+outputs of benchmarks/accuracy_vs_time.py's runs by 0.002 mm at most (docs/accuracy.md).
+A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
+the caller's step fails and the model goes back to its state at t0.
+
+Landing on t1: a substep shortened to land on t1 (h < the proposal) does not shrink the
+next proposal: that is the larger of the proposal and h times the growth factor, when
+the factor is >= 1. (Were the shortened step's growth to set it, caller steps of 10 ms
+with 5 ms substeps would run a 1.7 ms remnant, then 3.3 ms and 5 ms substeps and another
+remnant: three substeps per caller step where two do.) The remnant
+R - (n - 1) h of a caller step may still be tiny. With ``even_steps`` the span left,
+R = t1 - t, is split into n = ceil(R / h) equal substeps of R / n <= h (each still
+error-controlled). Off by default: on the gesture of benchmarks/fast_path.py it changes
+the substep sequence through the lip contact for the worse (more Newton iterations, no
+fewer substeps).
+
+Newton's start (warm start, ``predictor``): "velocity" u_n + h v_n (default), "quadratic"
+u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}) (the velocity extrapolated from the last two
+substeps of the same caller step; velocity for the first), "none" u_n. Where Newton fails
+from a predictor it is tried once more from u_n before the cutback. The predictor moves
+only the start of the iteration, not the converged u_{n+1} (to the Newton tolerance).
+"quadratic" takes more Newton iterations than "velocity" on the reference face's gesture
+of benchmarks/fast_path.py, hence the default.
+Each caller step starts with a new factorization of the tangent (Newton reuses it over
+the substeps, solver.core.newton), so that a step repeated from the same state (an FMU
+rollback) repeats exactly. Newton's key, what the tangent depends on besides u, is the
+substep size to 10 significant digits (the substep that lands on t1, t1 - t, is a few ulps
+off the split's size) and the damping matrix's generation (solver.core.terms.inertia: K_n is
+rebuilt on each substep's start state by default, and beta K_n / h is the tangent's
+largest part, so a factorization then serves one substep: one made on the previous
+substep leaves a large part of the residual in its linear model, and its step is
+dropped).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.core.errors import ParameterError
+from solver.core.linsolve import single_threaded_blas
+from solver.core.newton import newton
+from solver.core.terms.inertia import Damping, Inertia
+from solver.core.units import TISSUE_DENSITY
+
+PREDICTORS = ("velocity", "quadratic", "none")
+
+
+@dataclass
+class StepStats:
+    """What a caller's step took."""
+
+    converged: bool = True
+    substeps: int = 0
+    newton_iterations: int = 0
+    cutbacks: int = 0
+    rejected: int = 0
+    factorizations: int = 0
+    h_min: float = np.inf
+    h_max: float = 0.0
+    reason: str = ""
+    history: list = field(default_factory=list)     # (t, h, iterations) per accepted substep
+
+
+class Transient:
+    """Time stepping of a solver.Model (or a FaceModel's model).
+
+    density tonne/mm^3; alpha 1/s, beta s; inertia / damping: include the terms;
+    tol: local error tolerance (mm); max_substep, min_substep (s); hold 'ramp' | 'step';
+    fixed_step: if set, substeps of exactly that size (no error control; tests of order);
+    predictor 'velocity' | 'quadratic' | 'none' and even_steps: see the module docstring.
+    """
+
+    def __init__(self, model, density=TISSUE_DENSITY, alpha=40.0, beta=0.03, inertia=True,
+                 damping=True, tol=1e-3, max_substep=5e-3, min_substep=1e-7, hold="ramp",
+                 max_cutbacks=8, fixed_step=None, predictor="velocity", even_steps=False):
+        for name, v in (("density", density), ("alpha", alpha), ("beta", beta)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ParameterError(f"{name} = {v!r} must be a finite number >= 0")
+        if not (tol > 0 and max_substep > 0 and 0 < min_substep <= max_substep):
+            raise ParameterError("need tol > 0 and 0 < min_substep <= max_substep")
+        if hold not in ("ramp", "step"):
+            raise ParameterError(f"hold = {hold!r} must be 'ramp' or 'step'")
+        if predictor not in PREDICTORS:
+            raise ParameterError(f"predictor = {predictor!r} must be one of {PREDICTORS}")
+        self.predictor, self.even_steps = predictor, even_steps
+        self.model = model
+        self.tol, self.max_substep, self.min_substep = tol, max_substep, min_substep
+        self.hold, self.max_cutbacks, self.fixed_step = hold, max_cutbacks, fixed_step
+        self.step_terms = []
+        mesh = model.mesh
+        mass3 = None
+        if inertia and density > 0:
+            self.inertia = Inertia(mesh, density)
+            mass3 = self.inertia.m3
+            self.step_terms.append(self.inertia)
+        else:
+            self.inertia = None
+        if damping and (alpha > 0 or beta > 0):
+            mass3 = mass3 if mass3 is not None else np.repeat(
+                Inertia(mesh, density).mass, 3)
+            self.damping = Damping(mass3, alpha, beta, model.elasticity)
+            self.step_terms.append(self.damping)
+        else:
+            self.damping = None
+        if not self.step_terms:
+            raise ParameterError("a transient analysis needs inertia or damping")
+        for t in self.step_terms:
+            model.add_term(t)
+        self.t = 0.0
+        self.v = np.zeros_like(model.u)
+        self.h = min(max_substep, 1e-3)
+        self.dissipated = 0.0          # mJ: sum over substeps of h v^T C v (never negative)
+
+    def energy(self):
+        """(kinetic, stored) energy in mJ at the current state (stored: all potentials
+        of the model's terms other than inertia and damping)."""
+        kin = self.inertia.kinetic_energy(self.v) if self.inertia else 0.0
+        sysm = self.model.system()
+        others = [t for t in sysm.terms if t not in self.step_terms]
+        from solver.core.assembly import Assembly
+        asm = Assembly(sysm.pattern, False)
+        st = sysm.state(self.model.u.ravel())
+        for term, ids in zip(sysm.terms, sysm._ids):
+            if term in others:
+                term.assemble(st, asm, ids)
+        return kin, asm.energy
+
+    def _predict(self, u_n, v_n, h, prev):
+        """Newton's start for the substep of size h from (u_n, v_n); prev: (v_{n-1},
+        h_{n-1}) of the same caller step, or None."""
+        if self.predictor == "none":
+            return u_n
+        if self.predictor == "quadratic" and prev is not None:
+            return u_n + h * (v_n + h * (v_n - prev[0]) / prev[1])
+        return u_n + h * v_n
+
+    def _substep(self, sysm, u_n, v_n, h, targets, opts, prev=None):
+        for term in self.step_terms:
+            term.prepare(h, u_n.reshape(-1, 3), v_n.reshape(-1, 3))
+        lin = self.model.linear_solver
+        u0 = self._predict(u_n, v_n, h, prev)
+        key = (float(f"{h:.9e}"), self.damping.generation if self.damping else 0)
+        u, _, rep = newton(sysm, u0, targets, lin, opts, key=key)
+        if u is None and u0 is not u_n:
+            u, _, rep2 = newton(sysm, u_n, targets, lin, opts, key=key)
+            rep2.iterations += rep.iterations
+            rep2.factorizations += rep.factorizations
+            rep = rep2
+        return u, rep
+
+    def _size(self, h, t, t_end, h_last):
+        """The next substep's size from the proposal h at t (module docstring); h_last
+        when it is that size to rounding (a split's equal substeps keep one h, the key of
+        Newton's factorization)."""
+        span = t_end - t
+        if self.fixed_step or not self.even_steps:
+            return min(h, span)
+        n = max(1, int(np.ceil(span / h * (1.0 - 1e-9))))
+        h = span / n
+        return h_last if h_last and abs(h - h_last) <= 1e-9 * h else h
+
+    def advance(self, t_end):
+        """Integrate from self.t to t_end (> self.t); returns StepStats. On failure the
+        model, velocity and time stay at their values at the start of the call. BLAS runs
+        on one thread meanwhile (solver.core.linsolve.single_threaded_blas)."""
+        with single_threaded_blas():
+            return self._advance(t_end)
+
+    def _advance(self, t_end):
+        t0 = self.t
+        span = t_end - t0
+        if not (np.isfinite(t_end) and span > 0):
+            raise ParameterError(f"step end {t_end!r} must be after the current time {t0!r}")
+        model = self.model
+        sysm = model.system()
+        opts = model.newton_options
+        pres = sysm.prescribed
+        p_target = np.array([model._target[d] for d in pres])
+        u, v = model.u.ravel().copy(), self.v.ravel().copy()
+        p_start = u[pres].copy()
+        u0, v0, d0 = u.copy(), v.copy(), self.dissipated
+        touch = self._touching_at(sysm, u)                 # at u_n, from u_n alone
+        stats = StepStats()
+        t, run, prev = t0, 0, None
+        model.linear_solver.invalidate()
+        h_prop = self.fixed_step or min(self.h, self.max_substep)
+        while t < t_end - 1e-12 * max(1.0, abs(t_end)):
+            h = self._size(h_prop, t, t_end, prev[1] if prev else None)
+            t_new = t + h
+            if t_end - t_new < 1e-9 * span:
+                t_new, h = t_end, t_end - t
+            lam = 1.0 if self.hold == "step" else (t_new - t0) / span
+            sysm.lam, sysm.t = lam, t_new
+            targets = model.path_targets(pres, p_start, p_target, lam)
+            u_new, rep = self._substep(sysm, u, v, h, targets, opts, prev)
+            stats.newton_iterations += rep.iterations
+            stats.factorizations += rep.factorizations
+            if u_new is None:
+                stats.cutbacks += 1
+                run += 1
+                if run > self.max_cutbacks or h / 4 < self.min_substep:
+                    stats.converged = False
+                    stats.reason = f"at t = {t_new:.6g} s: {rep.reason}"
+                    model.u = u0.reshape(-1, 3)
+                    self.v = v0.reshape(-1, 3)
+                    self.dissipated = d0
+                    sysm.lam = 0.0
+                    sysm.restore(u0)
+                    return stats
+                h_prop = h / 4
+                continue
+            run = 0
+            v_new = (u_new - u) / h
+            touch_new = self._touching(sysm)
+            err = self._error(v_new - v, h, touch, touch_new)
+            if self.fixed_step is None and err > self.tol and h > self.min_substep * 1.0001:
+                stats.rejected += 1
+                h_prop = max(h * max(0.3, 0.9 * np.sqrt(self.tol / err)), self.min_substep)
+                continue
+            if self.damping is not None:
+                self.dissipated += h * float(v_new.ravel() @ self.damping.force(v_new))
+            prev = (v, h)
+            u, v, t, touch = u_new, v_new, t_new, touch_new
+            sysm.commit(u)
+            stats.substeps += 1
+            stats.h_min, stats.h_max = min(stats.h_min, h), max(stats.h_max, h)
+            stats.history.append((t, h, rep.iterations))
+            if self.fixed_step is None:
+                grow = 2.0 if err == 0 else min(2.0, max(0.3, 0.9 * np.sqrt(self.tol / err)))
+                landed = h < h_prop and grow >= 1.0
+                h_prop = min(max(h * grow, h_prop) if landed else h * grow, self.max_substep)
+                self.h = h_prop
+        self.t = t_end
+        model.u = u.reshape(-1, 3).copy()
+        self.v = v.reshape(-1, 3).copy()
+        return stats
+
+    @classmethod
+    def _touching_at(cls, sysm, u):
+        """(n,) bool: the nodes the nonsmooth terms push on at u (ndof,), evaluated there
+        (not carried over from the last step: a step from a state set by set_state then
+        repeats exactly), or None without such terms."""
+        if not any(t.nonsmooth for t in sysm.terms):
+            return None
+        sysm.nonsmooth_residual(u)
+        return cls._touching(sysm)
+
+    @staticmethod
+    def _touching(sysm):
+        """(n,) bool: the nodes the nonsmooth terms pushed on at their last evaluation (the
+        converged state after Newton), or None without such terms."""
+        parts = [t.touching() for t in sysm.terms if t.nonsmooth]
+        return np.logical_or.reduce(parts) if parts else None
+
+    @staticmethod
+    def _error(dv, h, touch, touch_new):
+        """The local error estimate h/2 ||dv||_inf (mm) of a substep, dv (3 n,) its change
+        of velocity, over the nodes no contact pushed on at either end (touch, touch_new:
+        (n,) bool at its start and end, or None where unknown: then over all nodes)."""
+        a = np.abs(dv).reshape(-1, 3).max(axis=1)
+        if touch is not None and touch_new is not None:
+            a = a[~(touch | touch_new)]
+        return 0.5 * h * float(a.max(initial=0.0))
+
+
+@dataclass
+class RelaxResult:
+    """What a damped relaxation to a static equilibrium took: converged; pseudo_time (s)
+    of damped motion; substeps and Newton iterations (the relaxation's and the final
+    undamped Newton's); reason (why it failed, if it did)."""
+
+    converged: bool = False
+    pseudo_time: float = 0.0
+    substeps: int = 0
+    newton_iterations: int = 0
+    reason: str = ""
+
+
+def relax(model, alpha=40.0, beta=0.03, ramp=0.1, chunk=0.1, t_max=2.0, tol=0.01,
+          max_substep=0.02):
+    r"""Static equilibrium by damped pseudo-time: the loads ramp to their targets over
+    ``ramp`` (s) under Rayleigh damping alone (no inertia),
+
+        C (u - u_n) / h + f_int(u) = f_ext(lam(t)),    C = alpha M + beta K_n,
+
+    and the damped motion continues in ``chunk``-long spans until an undamped Newton from
+    its state converges (then the result is a static equilibrium to Newton's own
+    tolerance, not an approximate one) or until ``t_max`` of pseudo-time has passed.
+
+    Why: load-stepped Newton follows one branch of equilibria and stops where the
+    tangent turns singular (a limit point: the compressed lip ring under full OOP
+    folds) or where contact's active set cycles between iterates. Damped motion passes
+    both, to the equilibrium the damped face settles into, as the transient analysis
+    does; a load with no stable equilibrium keeps it moving and fails after t_max. With
+    the paper's alpha = 40 1/s and beta = 0.03 s every mode is overdamped (damping ratio
+    >= 1.1, above), so the slowest relaxes within a few tenths of a second.
+
+    The model must hold no inertia or damping term of its own (a static model). On
+    failure the model is back at its state before the call (u, load factor, contact
+    blocks); the caller restores its load targets. Returns a RelaxResult.
+    """
+    sysm = model.system()
+    u_start = model.u.ravel().copy()
+    lam_start = sysm.lam
+    tr = Transient(model, alpha=alpha, beta=beta, inertia=False, damping=True, tol=tol,
+                   max_substep=max_substep, hold="ramp")
+    res = RelaxResult()
+    try:
+        t_next = ramp
+        while True:
+            stats = tr.advance(t_next)
+            res.substeps += stats.substeps
+            res.newton_iterations += stats.newton_iterations
+            if not stats.converged:
+                res.reason = f"damped relaxation failed {stats.reason}"
+                break
+            res.pseudo_time = tr.t
+            for term in tr.step_terms:
+                model.remove_term(term)
+            sysm = model.system()
+            sysm.lam = 1.0
+            pres = sysm.prescribed
+            targets = np.array([model._target[d] for d in pres])
+            model.linear_solver.invalidate()
+            u, _, rep = newton(sysm, model.u.ravel().copy(), targets, model.linear_solver,
+                               model.newton_options)
+            res.newton_iterations += rep.iterations
+            if u is not None:
+                sysm.commit(u)
+                model.u = u.reshape(-1, 3).copy()
+                res.converged = True
+                return res
+            if tr.t >= t_max - 1e-12:
+                res.reason = (f"no static equilibrium within {t_max:g} s of damped "
+                              f"pseudo-time: the undamped Newton from the relaxed state "
+                              f"failed ({rep.reason})")
+                break
+            for term in tr.step_terms:
+                model.add_term(term)
+            model.system().restore(model.u.ravel())
+            tr.hold = "step"            # the loads are at their targets: lam = 1 from now on
+            t_next = min(tr.t + chunk, t_max)
+    finally:
+        for term in tr.step_terms:
+            if term in model.terms:
+                model.remove_term(term)
+    sysm = model.system()
+    model.u = u_start.reshape(-1, 3).copy()
+    sysm.lam = lam_start
+    sysm.restore(u_start)
+    return res
