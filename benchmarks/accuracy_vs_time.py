@@ -4,6 +4,7 @@
                                           [--scheduler ADDRESS] [--workers 2]
                                           [--only LABEL,LABEL [--merge DIR]]
                                           [--cost wall|cpu] [--replot DIR] [--list]
+                                          [--doc FILE.md] [--img FILE.png]
 
 Scene (`gesture`, the built-in scene open_round): transient, the generic face, teeth and lip contact on. LLSAN and DLI
 open the lips (0 to 0.8 over 0-0.04 s), then OOP and RIS round and retract them (OOP 0 to
@@ -83,7 +84,9 @@ import argparse
 import json
 import math
 import os
+import shutil
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -481,6 +484,51 @@ def summary(table, out, title, cost="wall_s", quick=False):
     return falls
 
 
+def markdown(table, path, cost, made, argv):
+    """The sweep's figures as a markdown page at path: the command, commit, date and wall
+    time, then a row per run (cost, errors against its reference, front, preset) and the
+    level study; docs/accuracy.md includes it."""
+    from solver.app.provenance import command, stamp
+
+    def num(v, fmt="{:.3g}"):
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)
+    rows, rates, _ = level_study(table)
+    lines = [f"Made by `{command('benchmarks/accuracy_vs_time.py', argv)}` {stamp()}, "
+             f"{made}. Cost: {cost} (s) of the gesture's run; errors: "
+             "the largest difference over time from the row's reference run (mm).", "",
+             "run | reference | rows | dof | cpu_s | wall_s | rtf | err aperture | "
+             "err protrusion | front | preset",
+             "--- | --- | --- | --- | --- | --- | --- | --- | --- | --- | ---"]
+    for r in sorted(table, key=lambda r: -r.get(cost, 0.0)):
+        if r.get("error"):
+            lines.append(f"{r['label']} | {r.get('reference', '-')} | - | - | - | - | - | "
+                         f"FAILED: {r['error']} | | |")
+            continue
+        lines.append(" | ".join([
+            r["label"], r.get("reference", "-") or "-", num(r.get("rows"), "{}"),
+            num(r.get("ndof"), "{}"), num(r.get("cpu_s")), num(r.get("wall_s")),
+            num(r.get("rtf"), "{:.0f}"), num(r.get("err_aperture_mm")),
+            num(r.get("err_protrusion_mm")), "yes" if r.get("pareto") else "",
+            r.get("preset", "") or ""]))
+    if rows:
+        lines += ["", f"Level study (against {rows[0]['reference']}): " + ", ".join(
+            f"{r['level']} h {r['h_mm']:.2f} mm, error {r['err_mm']:.3g} mm" for r in rows)
+            + "; fitted rate p in err ~ h^p: "
+            + (", ".join(f"{k} {p:.2f}" for k, p in rates.items()) or "too few levels") + "."]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+
+
+def write_doc(table, args, out, cost, made, argv):
+    """markdown() at args.doc, and the plot of out copied to args.img (each if given)."""
+    if args.doc:
+        markdown(table, args.doc, cost, made, sys.argv[1:] if argv is None else argv)
+    if args.img:
+        args.img.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(out / "pareto.png", args.img)
+
+
 def list_specs(specs, path):
     """Print the runs (label, reference, preset, KNOBS) and save them as a CSV at path."""
     table = [{"label": s["label"], "reference": s["ref"] or "-",
@@ -512,17 +560,26 @@ def main(argv=None):
     ap.add_argument("--replot", type=Path, metavar="DIR",
                     help="no runs: the table, front and plot again from DIR's "
                          "accuracy_vs_time.csv (for instance with another --cost)")
+    ap.add_argument("--doc", type=Path, metavar="FILE",
+                    help="also write the table as markdown there (docs/generated/"
+                         "accuracy_sweep.md, which docs/accuracy.md includes)")
+    ap.add_argument("--img", type=Path, metavar="FILE",
+                    help="also copy the plot there (docs/img/pareto.png)")
     ap.add_argument("--list", action="store_true",
                     help="no runs: the runs of the sweep (with --only: those and their "
                          "references), their references, knobs and presets, printed and "
                          "written to OUT/runs.csv")
     args = ap.parse_args(argv)
     cost = f"{args.cost}_s"
+    t_start = time.perf_counter()
     if args.replot:
         table = read_table(args.replot / "accuracy_vs_time.csv")
         duration = next(r["wall_s"] / r["rtf"] for r in table if "rtf" in r)
         falls = summary(table, args.replot, f"gesture over {duration:.3g} s: error against "
                         f"{args.cost} time" + (" (--quick)" if args.quick else ""), cost)
+        if args.doc or args.img:
+            write_doc(table, args, args.replot, cost, "the figures of the sweep in "
+                      f"{args.replot}, replotted", argv)
         return 0 if falls or not args.quick else 1
     duration = args.duration or (QUICK_DURATION if args.quick else GESTURE_DURATION)
     out = args.out or Path("out") / ("accuracy_vs_time" + ("_quick" if args.quick else ""))
@@ -562,6 +619,9 @@ def main(argv=None):
     table += evaluate(specs, results, earlier)
     falls = summary(table, out, f"gesture over {duration} s: error "
                     f"against {args.cost} time" + (" (--quick)" if args.quick else ""), cost)
+    if args.doc or args.img:
+        write_doc(table, args, out, cost, f"{(time.perf_counter() - t_start) / 60:.1f} "
+                  "min in all", argv)
     return 0 if falls or not args.quick else 1
 
 

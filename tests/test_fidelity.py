@@ -360,8 +360,16 @@ def test_replot_marks_the_front_fits_the_rate_and_names_the_presets(tmp_path):
         w = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in table for k in r)))
         w.writeheader()
         w.writerows(table)
-    run = _accuracy(tmp_path, "--replot", "old")
+    run = _accuracy(tmp_path, "--replot", "old", "--doc", "docs/sweep.md", "--img",
+                    "docs/img/pareto.png")
     assert run.returncode == 0, run.stderr
+    page = (tmp_path / "docs" / "sweep.md").read_text()
+    assert ("`python benchmarks/accuracy_vs_time.py --replot old --doc docs/sweep.md --img "
+            "docs/img/pareto.png`") in page
+    assert "the figures of the sweep in old, replotted" in page
+    assert "\nmedium 2 rows | fine | 2 | 100 | 4 | 4 | 40 | 0.04 | 0.02 | yes | \n" in page
+    assert "\nlike balanced | fine | " in page and page.count("| yes |") == 4
+    assert (tmp_path / "docs" / "img" / "pareto.png").stat().st_size > 0
     assert "err_aperture_mm 2.00, err_protrusion_mm 2.00, err_mm 2.00" in run.stdout
     assert "error falls as the level rises: yes" in run.stdout
     out = {r["label"]: r for r in _csv(tmp_path / "old" / "accuracy_vs_time.csv")}
