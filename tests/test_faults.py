@@ -276,7 +276,7 @@ def test_an_edited_helper_in_another_file_recompiles_the_cached_kernels_that_cal
     assert cold["file"].startswith(str(copy))
     assert (cold["misses"], warm["hits"], warm["misses"]) == (1, 1, 0)   # cached, then used
     assert warm["W"] == cold["W"]
-    helper = copy / "solver" / "kernels" / "mooney_rivlin.py"
+    helper = copy / "solver" / "core" / "kernels" / "mooney_rivlin.py"
     old = "return (J - 1.0) ** 2 / d, "
     assert old in helper.read_text()
     helper.write_text(helper.read_text().replace(old, "return 2.0 * (J - 1.0) ** 2 / d, "))
@@ -417,8 +417,9 @@ def test_the_kernel_cache_stamp_covers_every_kernel_file(tmp_path):
     from solver.core._cache import kernel_sources_stamp
     from conftest import ROOT
     root = tmp_path / "solver"
-    shutil.copytree(ROOT / "solver" / "kernels", root / "kernels")
-    shutil.copy(ROOT / "solver" / "fidelity.py", root / "fidelity.py")
+    assert kernel_sources_stamp() == kernel_sources_stamp(ROOT / "solver")  # the package,
+    shutil.copytree(ROOT / "solver" / "core" / "kernels", root / "kernels")  # rom's too
+    shutil.copy(ROOT / "solver" / "app" / "fidelity.py", root / "fidelity.py")
     first = kernel_sources_stamp(root)
     assert kernel_sources_stamp(root) == first and len(first) == 64
     again = tmp_path / "again"
