@@ -4,16 +4,22 @@
                                    [--energy 3e-4] [--ecsw-tol 0.1] [--max-wall 30]
                                    [--out FILE.npz]
                                    [--scheduler ADDRESS] [--workers 2] [--no-dask]
+    python benchmarks/rom_train.py --ship [--workers 2]
     python benchmarks/rom_train.py --accuracy [--scene SCENE] [--model FILE.npz]
                                    [--gestures oop_ris,open,open_round] [--md FILE]
 
 SCENE: a built-in scene or a TOML file; the default, `speech` (solver/app/scenes/speech.toml),
 drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
-scene's full-order model at the realtime knobs (solver.app.fidelity.REDUCED: coarse generic
-half face) and cached in the user cache (solver.rom.store; the path is printed), where
+scene's full-order model at the realtime knobs (solver.app.fidelity.REDUCED: the balanced
+preset's mesh and tolerances) and cached in the user cache (solver.rom.store; the path is printed), where
 `open_simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
 a dask LocalCluster (solver.sweep.Sweep, `--workers` one-thread processes) or a
 running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the steps.
+
+--ship trains the model that ships with the project (solver/rom/models; solver.rom.store):
+the `default` scene's (the same key as `speech`'s), with this script's defaults and no
+wall-time limit on a run, so that the same commit gives the same model; its meta records
+the command and the commit. tests/test_rom_shipped.py fails when its key is stale.
 
 --accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced and the
 full-order model and prints max and RMS errors (mm) in lip aperture and protrusion and
@@ -37,11 +43,18 @@ def load(name):
 
 
 def train_main(args):
+    from solver.app.provenance import command, commit
     from solver.rom.train import train
+    if args.ship:
+        from solver.rom.store import SHIPPED, model_path, shipped_scenes
+        args.scene, args.max_wall, args.budget = shipped_scenes()[0], None, None
+        args.out = model_path(load(args.scene), SHIPPED)
     scene = load(args.scene)
     kw = dict(runs=args.runs, duration=args.duration, energy=1.0 - args.energy,
               ecsw_tol=args.ecsw_tol, out=args.out, seed=args.seed,
-              max_wall=args.max_wall, budget=args.budget)
+              max_wall=args.max_wall, budget=args.budget,
+              provenance={"scene": args.scene, "revision": commit(),
+                          "command": command("benchmarks/rom_train.py")})
     if args.no_dask:
         return train(scene, **kw)
     from solver.sweep import Sweep
@@ -94,6 +107,8 @@ def main(argv=None):
     ap.add_argument("--scheduler", help="address of a running dask scheduler")
     ap.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes")
     ap.add_argument("--no-dask", action="store_true", help="snapshot runs in this process")
+    ap.add_argument("--ship", action="store_true", help="train the shipped model "
+                    "(solver/rom/models) of the default scene, deterministically")
     ap.add_argument("--accuracy", action="store_true", help="held-out gestures, ROM vs full")
     ap.add_argument("--model", type=Path, help="--accuracy: this model file (default: the "
                                                "cached model of the scene)")

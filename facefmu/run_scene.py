@@ -22,7 +22,8 @@ def add_arguments(parser):
                              "TOML file (default: default, the paper's model for speech)")
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.add_argument("--anatomy", help="override the scene's anatomy ('generic' or a folder)")
-    parser.add_argument("--level", help="override the scene's level")
+    parser.add_argument("--level", help="override the scene's level (generic face: that "
+                        "level's own brick rows)")
     parser.add_argument("--full", action="store_true", help="simulate the full face")
     parser.add_argument("--jaw-opening", type=float, metavar="DEG",
                         help="hold the jaw open by DEG degrees (reached over the first "
@@ -40,6 +41,8 @@ def run(args):
     if args.vtu:
         need("meshio", "export", "facefmu run --vtu")
     overrides = {k: v for k, v in (("anatomy", args.anatomy), ("level", args.level)) if v}
+    if args.level:
+        overrides["rows"] = None                # the level's own rows, not a preset's
     if args.full:
         overrides["half"] = False
     sim = open_simulation(args.scene, **overrides)

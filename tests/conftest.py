@@ -1,6 +1,7 @@
 """Shared fixtures: a random generator, the FMU built once per test session, and a tiny
 realtime (reduced-order) model trained once per session."""
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -35,31 +36,42 @@ def fmu(tmp_path_factory):
 ROM_DRIVEN = ("RIS", "DLI", "OOP")
 
 
-@pytest.fixture(scope="session")
-def trained(tmp_path_factory):
-    """A realtime model trained in this process on a tiny set: the coarse generic half face
-    with OOP, RIS and DLI driven, teeth and lip contact, 3 full-order runs of 0.05 s (5 ms
-    snapshots; none read from or kept in the user's snapshot cache). The model is saved as
-    model.npz and under its key's name in `folder` (for FACEFMU_ROM_DIR look-ups)."""
-    import shutil as _shutil
-
+def _train_tiny(folder, runs, jaw_runs):
     from solver.app.fidelity import apply_fidelity
-    from solver.rom.store import load_model, model_path
-    from solver.rom.train import collect, snapshot_tasks, train
     from solver.app.scene import Scene
     from solver.app.simulation import Simulation
-    folder = tmp_path_factory.mktemp("rom")
+    from solver.rom.store import load_model, model_path
+    from solver.rom.train import collect, snapshot_tasks, train
     scene = apply_fidelity(Scene(name="rom_test", driven=ROM_DRIVEN, lip_contact=True,
-                                 teeth_contact=True), "realtime")
+                                 teeth_contact=True, fidelity="realtime"), "realtime")
+    scene = scene.with_overrides(level="coarse", rows=None)
     full = Simulation(scene)
-    path = train(scene, sim=full, runs=3, duration=0.05, interval=0.005, seed=3,
-                 calibration_runs=1, out=folder / "model.npz", progress=False, sim_only=True)
-    _shutil.copy(path, model_path(full.scene, folder))
+    path = train(scene, sim=full, runs=runs, duration=0.05, interval=0.005, seed=3,
+                 calibration_runs=1, out=folder / "model.npz", progress=False, sim_only=True,
+                 jaw_runs=jaw_runs)
+    shutil.copy(path, model_path(full.scene, folder))
     arrays, meta = load_model(path)
-    tasks = snapshot_tasks(full.scene, 3, 0.05, 0.005, 3)       # the same patterns
+    tasks = snapshot_tasks(full.scene, runs, 0.05, 0.005, 3, jaw_runs=jaw_runs)  # the same
     results = collect(full.scene, tasks, sim=full, progress=False)
     return {"scene": full.scene, "full": full, "path": path, "arrays": arrays, "meta": meta,
             "tasks": tasks, "results": results, "folder": folder}
+
+
+@pytest.fixture(scope="session")
+def trained(tmp_path_factory):
+    """A realtime model trained in this process on a tiny set: the coarse generic half face
+    (the scene's fidelity "realtime", its level "coarse") with OOP, RIS and DLI driven,
+    teeth and lip contact, 3 full-order runs of 0.05 s with the jaw closed (5 ms
+    snapshots; none read from or kept in the user's snapshot cache). The model is saved
+    as model.npz and under its key's name in `folder` (for FACEFMU_ROM_DIR look-ups)."""
+    return _train_tiny(tmp_path_factory.mktemp("rom"), 3, 0)
+
+
+@pytest.fixture(scope="session")
+def trained_jaw(tmp_path_factory):
+    """As `trained`, with the jaw: one muscle pattern (which may move the jaw) and one
+    run that opens it (solver.rom.train.snapshot_tasks, jaw_runs=1)."""
+    return _train_tiny(tmp_path_factory.mktemp("rom_jaw"), 1, 1)
 
 
 # Tolerances for the comparisons of NewtonOptions on the lip gesture: substep error 1e-2 mm,

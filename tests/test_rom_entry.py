@@ -19,6 +19,10 @@ SCENE = textwrap.dedent(f"""
     fidelity = "realtime"
     duration = 0.01
 
+    [anatomy]
+    level = "coarse"                # the tiny model's mesh (the file's keys win)
+    rows = 1
+
     [muscles]
     driven = {list(ROM_DRIVEN)}
 
@@ -88,12 +92,13 @@ def test_cli_run_fidelity_realtime(trained, scene_file, tmp_path, monkeypatch, c
     plain = tmp_path / "plain.toml"                 # the scene without its fidelity key
     plain.write_text(SCENE.replace('fidelity = "realtime"\n', ""))
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(tmp_path / "empty"))
-    assert cli.main(["run", str(plain), "--fidelity", "realtime", "--out",
-                     str(tmp_path), "--quiet"]) == 2
+    # --level: the tiny model's mesh (over the preset's)
+    assert cli.main(["run", str(plain), "--fidelity", "realtime", "--level", "coarse",
+                     "--out", str(tmp_path), "--quiet"]) == 2
     assert "rom_train.py" in capsys.readouterr().err
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(trained["folder"]))
-    assert cli.main(["run", str(plain), "--fidelity", "realtime", "--out",
-                     str(tmp_path), "--quiet"]) == 0
+    assert cli.main(["run", str(plain), "--fidelity", "realtime", "--level", "coarse",
+                     "--out", str(tmp_path), "--quiet"]) == 0
     csv = (tmp_path / "rom_entry.csv").read_text().splitlines()
     assert len(csv) == 1 + 6                        # header, t = 0 ... 0.01 s by 2 ms
 
@@ -116,9 +121,10 @@ FMPY = textwrap.dedent("""
         fmu.setString([vr["scene"], vr["fidelity"]], [scene, "realtime"])
         fmu.exitInitializationMode()
         return fmu
-    # no model for the default scene (its key differs): refused at initialization
+    # no model for the no_contact scene (no model ships for its key): refused at
+    # initialization
     try:
-        make("untrained", "default")
+        make("untrained", "no_contact")
         res["untrained"] = "initialized"
     except FMICallException as exc:
         res["untrained"] = type(exc).__name__
@@ -162,17 +168,17 @@ def test_fmu_carries_a_trained_model_and_refuses_without_one(trained, scene_file
     res = json.loads(out.read_text())
     assert res["untrained"] == "FMICallException"
     # fmpy's default logger prints the FMU's log messages
-    assert "no trained realtime model for scene 'default'" in run.stdout
-    assert "rom_train.py --scene default" in run.stdout
+    assert "no trained realtime model for scene 'no_contact'" in run.stdout
+    assert "rom_train.py --scene no_contact" in run.stdout
     assert len(res["outs"]) == 5 and res["outs"][-1][1] != 0.0
     assert res["first"] == res["second"]                     # a rollback repeats exactly
 
 
 def test_realtime_hands_over_to_the_full_model_when_the_jaw_opens(trained, scene_file,
                                                                   monkeypatch):
-    """The reduced models are trained with the jaw closed: a closed jaw keeps the reduced
-    model; an open one is outside its envelope, so the run goes on with the full model,
-    with a TrustWarning naming the jaw, and the jaw opens the lips."""
+    """A model trained with the jaw closed (the tiny `trained`): a closed jaw keeps the
+    reduced model; an open one is outside its envelope, so the run goes on with the full
+    model, with a TrustWarning naming the input, and the jaw opens the lips."""
     from solver.rom.simulation import ReducedSimulation, TrustWarning
     from solver.entry import open_simulation
     monkeypatch.setenv("FACEFMU_ROM_DIR", str(trained["folder"]))
@@ -183,7 +189,7 @@ def test_realtime_hands_over_to_the_full_model_when_the_jaw_opens(trained, scene
     assert sim.step(0.005).converged and sim.mode == "rom"
     rest = sim.outputs()
     assert rest["incisor_opening"] == 0.0
-    with pytest.warns(TrustWarning, match="jaw pose"):
+    with pytest.warns(TrustWarning, match="jaw_opening = 6 deg is outside its training"):
         sim.set_jaw(6.0)
     assert sim.mode == "full"
     assert sim.step(0.015).converged

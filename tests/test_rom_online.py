@@ -24,21 +24,48 @@ def _drive(sim, task, duration=None, step=1e-3, each=None):
     return drive(sim, task["schedules"], duration or task["duration"], step, each)
 
 
-@pytest.fixture(scope="module")
-def states(trained):
-    """(q, activations) along the first training pattern, reduced (reference method)."""
-    rom = _rom(trained, method="reference", damping_refresh=1, trust="off")
+def _jaw_task(trained):
+    return next(t for t in trained["tasks"] if t["label"].startswith("jaw"))
+
+
+@pytest.fixture(scope="module", params=["pattern", "jaw"])
+def states(request):
+    """(q, activations, jaw pose) along the first training pattern of `trained`, and along
+    the one of `trained_jaw` that opens the jaw, reduced (reference method); and the model
+    (trained or trained_jaw)."""
+    jaw = request.param == "jaw"
+    model = request.getfixturevalue("trained_jaw" if jaw else "trained")
+    rom = _rom(model, method="reference", damping_refresh=1, trust="off")
     out = []
-    _drive(rom, trained["tasks"][0], each=lambda s: out.append(
-        (s.q.copy(), s.face.activation.start.copy())))
-    return rom, out
+    _drive(rom, _jaw_task(model) if jaw else model["tasks"][0], each=lambda s: out.append(
+        (s.q.copy(), s.face.activation.start.copy(), np.array(s.jaw))))
+    if jaw:
+        assert max(p[0] for _, _, p in out) >= 5.0          # the jaw opens
+    return rom, out, model
 
 
-def test_fast_kernels_give_the_reference_operators_forces_and_tangents(trained, states):
-    rom, seq = states
+def _at(sim, pose, pose_n=None):
+    """Put sim's jaw (the full model's terms) and its reduced operator at pose."""
+    sim.face.set_jaw_state(pose)
+    sim.op.set_pose(pose if pose_n is None else pose_n, pose)
+    if sim.stepper.online is not None:
+        sim.stepper.online.set_pose()
+
+
+def test_fast_kernels_give_the_reference_operators_forces_and_tangents(states):
+    rom, seq, model = states
     op = rom.op
-    fast = _rom(trained, trust="off").stepper.online
-    for q, a in seq[len(seq) // 4::3]:     # deformed: no cable within rounding of slack
+    fsim = _rom(model, trust="off")
+    fast = fsim.stepper.online
+    checked = 0
+    for q, a, pose in seq[len(seq) // 4::3]:
+        _at(rom, pose)
+        _at(fsim, pose)
+        d = op.d0 + op.D @ q                 # no cable within rounding of slack
+        strain = np.linalg.norm(d, axis=1) / op.L0 - 1.0 + a[op.cab_muscle] * op.cab_unit
+        if np.abs(strain).min() < 1e-9:
+            continue
+        checked += 1
         fast.set_activation(a)
         fast.prepare_damping(q, 0.0)
         f, jmin = fast.forces(q)
@@ -62,17 +89,35 @@ def test_fast_kernels_give_the_reference_operators_forces_and_tangents(trained, 
         f_damped = fast.forces(q)[0].copy()
         df = 30.0 * Kn @ (q - q_n)
         assert np.abs(f_damped - f - df).max() <= 1e-9 * max(np.abs(df).max(), 1e-6)
+        # a moving jaw: the lifting's velocity damped as well, K_n on the start's shape
+        if pose[0] > 0.0:
+            pose_n = 0.8 * pose
+            _at(rom, pose, pose_n)
+            _at(fsim, pose, pose_n)
+            fast.prepare_damping(q_n, 0.0)
+            f = fast.forces(q)[0].copy()
+            fast.prepare_damping(q_n, 30.0)
+            f_damped = fast.forces(q)[0].copy()
+            Kn, kdl = op.passive_stiffness(q_n, op.le - op.le_n)
+            assert np.abs(kdl).max() > 0.0
+            df = 30.0 * (Kn @ (q - q_n) + kdl)
+            assert np.abs(f_damped - f - df).max() <= 1e-9 * max(np.abs(df).max(), 1e-6)
+    assert checked >= 3
 
 
-def test_reduced_contact_gives_the_terms_forces_along_a_gesture(trained, states):
+def test_reduced_contact_gives_the_terms_forces_along_a_gesture(states):
     from solver.rom.contact import ReducedContact
-    rom, seq = states
+    rom, seq, _ = states
     V, n = rom.op.V, rom.anatomy.mesh.n_nodes
     fast = ReducedContact(rom.op.contact, V, n)
     generic = ReducedContact(rom.op.contact, V, n, generic=True)
     assert fast.fast and not generic.fast
     worst = 0.0
-    for q, _ in seq:
+    for q, _, pose in seq:
+        rom.face.set_jaw_state(pose)                       # the generic path's terms
+        L = rom.op.lifting.at(pose)[0]
+        fast.set_pose(pose, L)
+        generic.set_pose(pose, L)
         for need_k in (False, True):
             f1, K1 = (x.copy() if x is not None else None for x in fast.evaluate(q, need_k))
             f2, K2 = generic.evaluate(q, need_k)
@@ -85,8 +130,10 @@ def test_reduced_contact_gives_the_terms_forces_along_a_gesture(trained, states)
     assert worst > 1e-3                                    # the gesture touches
 
 
-def test_fast_method_follows_the_reference_method(trained):
-    task = trained["tasks"][0]
+@pytest.mark.parametrize("which", ["trained", "trained_jaw"])
+def test_fast_method_follows_the_reference_method(request, which):
+    trained = request.getfixturevalue(which)
+    task = trained["tasks"][0] if which == "trained" else _jaw_task(trained)
     ref = _rom(trained, method="reference", damping_refresh=1, trust="off")
     fast = _rom(trained, trust="off")
     a, b = _drive(ref, task), _drive(fast, task)
@@ -96,12 +143,14 @@ def test_fast_method_follows_the_reference_method(trained):
     assert fast.last.converged and fast.mode == "rom"
 
 
-def test_trust_check_gives_the_full_models_residual(trained, states):
+def test_trust_check_gives_the_full_models_residual(states):
     from solver.core.terms.inertia import passive_tangent
-    rom, seq = states
-    chk = _rom(trained).checker
-    q, _ = seq[-1]
-    u, un = rom.op.V @ q, rom.op.V @ (0.8 * q)
+    rom, seq, model = states
+    chk = _rom(model).checker
+    q, _, pose = seq[-1]
+    rom.face.set_jaw_state(pose)                           # the cables', the teeth's pose
+    L = rom.op.lifting.at(pose)[0].ravel()
+    u, un = rom.op.V @ q + L, rom.op.V @ (0.8 * q) + L
     chk.sysm_all.lam = 1.0
     f_ref = chk.sysm_all.residual(u)
     assert np.abs(chk.internal_forces(u) - f_ref).max() <= 1e-10 * np.abs(f_ref).max()
@@ -114,11 +163,12 @@ def test_trust_check_gives_the_full_models_residual(trained, states):
     assert np.abs(chk.passive_apply(un, du) - kdu).max() <= 1e-10 * np.abs(kdu).max()
 
 
-def test_lip_outputs_of_the_reduced_state_are_the_face_models(trained, states):
-    rom, seq = states
-    for q, _ in seq[::5]:
-        a = rom._outputs(q)
-        b = rom.face.lip_outputs(rom.op.displacement(q))
+def test_lip_outputs_of_the_reduced_state_are_the_face_models(states):
+    rom, seq, _ = states
+    for q, _, pose in seq[::5]:
+        L = rom.op.lifting.at(pose)[0]
+        a = rom._outputs(q, L)
+        b = rom.face.lip_outputs(rom.op.displacement(q, L))
         assert a.keys() == b.keys()
         assert all(a[k] == pytest.approx(b[k], abs=1e-12) for k in b)
 
@@ -149,3 +199,28 @@ def test_short_lists_distance_is_the_contact_kernels(rng):
     for p in rng.normal(size=(2000, 3)) * 2:
         d2 = nearest(p, xv, tris, np.array([0]), w, wt)[2]
         assert _triangle_d2(p, xv, 0, 1, 2) == pytest.approx(d2, rel=1e-10, abs=1e-13)
+
+
+def test_a_rolled_back_jaw_step_repeats_exactly(trained_jaw):
+    rom = _rom(trained_jaw)
+    hi = trained_jaw["meta"]["jaw_envelope"]["jaw_opening"][1]
+    assert hi >= 5.0
+    rom.set_activations({"OOP": 0.5})
+    rom.set_jaw(opening=0.3 * hi)
+    rom.step(0.004)
+    state = rom.get_state()
+    assert state["jaw"][0] == 0.3 * hi
+
+    def jaw_steps():
+        out = []
+        for k in range(3):
+            rom.set_jaw(opening=(0.5 + 0.2 * k) * hi)
+            assert rom.step(rom.t + 0.003).converged
+            out.append(rom.outputs())
+        return out
+    first = jaw_steps()
+    assert rom.mode == "rom"
+    assert first[-1]["incisor_opening"] > first[0]["incisor_opening"] > 0.0
+    rom.set_state(state)
+    assert rom.jaw == (0.3 * hi, 0.0)
+    assert jaw_steps() == first

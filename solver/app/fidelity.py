@@ -49,13 +49,14 @@ PRESETS = {
 }
 FIDELITIES = tuple(PRESETS)
 
-# --- reduced-order fidelities (solver.rom; issue 10) -----------------------------------
+# --- reduced-order fidelities (solver.rom) ----------------------------------------------
 # Not presets of the full-order solver (not in FIDELITIES nor PRESETS): open_simulation(...,
 # fidelity="realtime") (solver.entry), a scene file's `fidelity = "realtime"`, `facefmu run
 # --fidelity realtime` and the FMU's fidelity parameter open a solver.rom.simulation.
-# ReducedSimulation, whose full-order model (training snapshots, fallback) has these knobs.
-REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatation",
-                            **LOOSE)}
+# ReducedSimulation, whose full-order model (training snapshots, fallback) has these
+# knobs: the balanced preset's mesh and tolerances, so that the reduced model carries
+# balanced's accuracy against the fine face.
+REDUCED = {"realtime": dict(PRESETS["balanced"])}
 
 
 def fidelity_overrides(name, anatomy="generic"):

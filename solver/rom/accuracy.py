@@ -9,7 +9,7 @@ Gestures (none is a training pattern; training draws random patterns, solver.rom
 
 Each runs with the reduced model (caller steps of `rom_step`, 1 ms: as an FMU master
 stepping at 1 ms) and with the full-order model of the same scene (the realtime knobs:
-coarse generic half face, loose tolerances; caller steps of `full_step`), both from rest.
+the balanced preset's mesh and tolerances; caller steps of `full_step`), both from rest.
 Errors: over the full run's record times, max and RMS of |ROM - full| in lip aperture
 and lip protrusion (mm, Simulation.outputs()). Times: wall and process CPU time of the
 stepping (build apart); rtf = wall / simulated time.

@@ -26,6 +26,10 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
 * anything else: the term's assemble() on a full-size displacement filled at the
   contact nodes only (the generic, slower path; solver.rom.reduced does the same).
 
+The jaw (set_pose): the contact nodes sit at X + L + V q (L the lifting,
+solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to); a
+rigid adapter whose surface moved rebuilds its triangles' bounding spheres and its lists.
+
 Each adapter adds V_b^T f_b (and V_b^T K_b V_b) of its active blocks (project_nodal) and
 reports its normal contact force (N) and its active set (for the tangent's refresh).
 tests/test_rom_online.py checks the adapters against the terms' assemble().
@@ -54,6 +58,8 @@ class _Rigid:
         self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
                                                        axis=2).max(axis=1))
         self.depth = float(term.search_radius)
+        self.X0 = self.X
+        self.pose = self._geom_pose = np.zeros(2)
         # the term's kernel arguments after `tri` (its free-edge fade and rim topology)
         self.extra = term.rim_args()
         self.ptr = np.zeros(s + 1, dtype=np.int64)
@@ -71,11 +77,34 @@ class _Rigid:
     def nodes(self):
         return self.slaves
 
+    def set_pose(self, pose, L):
+        """The jaw's pose (2,) and the lifting L (n, 3) of the coming evaluations."""
+        self.pose = pose
+        Ls = L[self.slaves]
+        self.X = np.ascontiguousarray(self.X0 + Ls) if np.any(Ls) else self.X0
+
+    def _follow(self):
+        """Put the term's surface at self.pose (another caller may have moved it) and
+        rebuild the bounding spheres and lists where the geometry changed."""
+        t = self.term
+        if t.motion is None:
+            return
+        if not np.array_equal(t.pose, self.pose):
+            t.move_to(self.pose)
+        if not np.array_equal(self._geom_pose, self.pose):
+            xv, tris = t.vertices, t.tris
+            self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
+            self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
+                                                           axis=2).max(axis=1))
+            self._geom_pose = self.pose.copy()
+            self.reset()
+
     def reset(self):
         self.x_ref = np.zeros((0, 3))                  # rebuild the lists at the next call
 
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
+        self._follow()
         move = slave_positions(q, self.X, self.Vs, self.x_ref, self.all, self.x, self.xs)
         if not move <= self.delta:
             short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta,
@@ -170,6 +199,7 @@ class _Generic:
 
     def __init__(self, term, V):
         self.term = term
+        self.lam = 1.0
         self.bl = term.blocks()
         self.Vb = [np.ascontiguousarray(V[block_dofs(b)]) for b in self.bl]
 
@@ -179,7 +209,7 @@ class _Generic:
     def evaluate(self, q, x, need_k, fr, kr):
         cap = _Capture(need_k)
         u = x - self.term.mesh.nodes
-        self.term.assemble(State(u, 1.0, 0.0, {}), cap, list(range(len(self.bl))))
+        self.term.assemble(State(u, self.lam, 0.0, {}), cap, list(range(len(self.bl))))
         for block, fe, ke, rows in cap.blocks:
             Vb = self.Vb[block] if rows is None else self.Vb[block][rows]
             rows = np.arange(len(Vb))
@@ -228,6 +258,7 @@ class ReducedContact:
         self.nodes = np.unique(np.concatenate(nodes)) if nodes else np.zeros(0, np.int64)
         self.Vc = np.ascontiguousarray(Vn[self.nodes])
         self.X = np.ascontiguousarray(terms[0].mesh.nodes) if terms else np.zeros((0, 3))
+        self.X0 = self.X
         self.x = self.X.copy()                 # current positions at the contact nodes
         self.fr, self.kr = np.zeros(self.r), np.zeros((self.r, self.r))
         self.total_force, self.active = 0.0, tuple(0 for _ in self.adapters)
@@ -237,6 +268,16 @@ class ReducedContact:
         for a in self.adapters:
             if hasattr(a, "reset"):
                 a.reset()
+
+    def set_pose(self, pose, L, lam=1.0):
+        """The jaw's pose (2,), the lifting L (n, 3) at it and the caller's load factor
+        lam there (the generic path's terms move their surfaces by lam)."""
+        self.X = np.ascontiguousarray(self.X0 + L) if np.any(L) else self.X0
+        for a in self.adapters:
+            if isinstance(a, _Rigid):
+                a.set_pose(np.array(pose, dtype=np.float64), L)
+            elif isinstance(a, _Generic):
+                a.lam = float(lam)
 
     @property
     def fast(self):

@@ -20,9 +20,9 @@ _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf che
 
 
 @njit(cache=True, fastmath=_FM)
-def damping_geometry(q, Ve, dndX, wgp, ue, dxn, wn, dvn):
-    """The shape X + V q of the selected bricks for their damping: fills ue (k, 24) their
-    displacements V_e q, dxn (k, 8, 8, 3) dN/dx, wn (k, 8) w det F and dvn (k, 24)
+def damping_geometry(q, Ve, le, dndX, wgp, ue, dxn, wn, dvn):
+    """The shape X + V q + L of the selected bricks for their damping (le (k, 24) the
+    lifting L on them): fills ue (k, 24) their displacements V_e q + le_e, dxn (k, 8, 8, 3) dN/dx, wn (k, 8) w det F and dvn (k, 24)
     sum_g wn dN/dx. Returns the smallest det F."""
     k, _, r = Ve.shape
     jmin = np.inf
@@ -31,7 +31,7 @@ def damping_geometry(q, Ve, dndX, wgp, ue, dxn, wn, dvn):
             acc = 0.0
             for j in range(r):
                 acc += Ve[e, c, j] * q[j]
-            ue[e, c] = acc
+            ue[e, c] = acc + le[e, c]
             dvn[e, c] = 0.0
         for g in range(8):
             G = dndX[e, g]

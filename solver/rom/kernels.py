@@ -23,21 +23,22 @@ from solver.core.kernels.brick import _element
 
 
 @njit(cache=True)
-def _gather(Ve_e, q, ue):
-    """ue (8, 3) = the brick's displacements V_e q (Ve_e (24, r), q (r,))."""
+def _gather(Ve_e, q, le_e, ue):
+    """ue (8, 3) = the brick's displacements V_e q + le_e (Ve_e (24, r), q (r,), le_e (24,)
+    the lifting: the prescribed displacements)."""
     for a in range(8):
         for i in range(3):
-            acc = 0.0
+            acc = le_e[3 * a + i]
             for j in range(q.shape[0]):
                 acc += Ve_e[3 * a + i, j] * q[j]
             ue[a, i] = acc
 
 
 @njit(cache=True)
-def reduced_bricks(q, Ve, w, dndX, wgp, params, form, sparams, s, need_k, fr, kr):
-    """q (r,), Ve (k, 24, r), w (k,), dndX (k, 8, 8, 3), wgp (k, 8), params (k, 6) of
-    the tissue (formulation form), sparams (k, 6) of the unit stiffening (form 'full'),
-    s (k,) stiffening factors - 1; fills fr (r,) and, when need_k, kr (r, r). Returns
+def reduced_bricks(q, Ve, le, w, dndX, wgp, params, form, sparams, s, need_k, fr, kr):
+    """q (r,), Ve (k, 24, r), le (k, 24) the lifting (u_e = V_e q + le_e), w (k,), dndX
+    (k, 8, 8, 3), wgp (k, 8), params (k, 6) of the tissue (formulation form), sparams
+    (k, 6) of the unit stiffening (form 'full'), s (k,) stiffening factors - 1; fills fr (r,) and, when need_k, kr (r, r). Returns
     the smallest det F over the bricks."""
     k, _, r = Ve.shape
     fr[:] = 0.0
@@ -51,7 +52,7 @@ def reduced_bricks(q, Ve, w, dndX, wgp, params, form, sparams, s, need_k, fr, kr
     kv = np.empty((24, r))
     jmin = np.inf
     for e in range(k):
-        _gather(Ve[e], q, ue)
+        _gather(Ve[e], q, le[e], ue)
         _, jm = _element(ue, dndX[e], wgp[e], params[e], form, need_k, fe, ke)
         jmin = min(jmin, jm)
         if jm <= 0.0:
@@ -134,10 +135,10 @@ def _symmetrize(kr):
 
 
 @njit(cache=True)
-def brick_tangents_split(q, Ve, w, dndX, wgp, params, form, sparams, slot, kt, ks):
-    """The cubature's tangent at q split by activation: kt (r, r) = sum_e w_e V_e^T K_e V_e
-    (tissue) and, for each brick e with slot[e] >= 0, ks[slot[e]] (r, r) = w_e V_e^T K^s_e
-    V_e (its unit stiffening), so that reduced_bricks' tangent is kt + sum_e s_e ks[slot[e]]
+def brick_tangents_split(q, Ve, le, w, dndX, wgp, params, form, sparams, slot, kt, ks):
+    """The cubature's tangent at u_e = V_e q + le_e (le (k, 24)) split by activation: kt
+    (r, r) = sum_e w_e V_e^T K_e V_e (tissue) and, for each brick e with slot[e] >= 0,
+    ks[slot[e]] (r, r) = w_e V_e^T K^s_e V_e (its unit stiffening), so that reduced_bricks' tangent is kt + sum_e s_e ks[slot[e]]
     for any factors s. Returns the smallest det F."""
     k, _, r = Ve.shape
     kt[:, :] = 0.0
@@ -147,7 +148,7 @@ def brick_tangents_split(q, Ve, w, dndX, wgp, params, form, sparams, slot, kt, k
     kv = np.empty((24, r))
     jmin = np.inf
     for e in range(k):
-        _gather(Ve[e], q, ue)
+        _gather(Ve[e], q, le[e], ue)
         _, jm = _element(ue, dndX[e], wgp[e], params[e], form, True, fe, ke)
         jmin = min(jmin, jm)
         if jm <= 0.0:

@@ -6,6 +6,9 @@ evaluated fast (same math; tests/test_rom_online.py compares the two).
   stiffening (solver.rom.kernels.brick_tangents_split), so that a tangent built on one
   shape follows the activations exactly (kt + sum_e s_e(a) ks_e);
 * cables: one numba pass (cable_forces_r) over D_c (c, 3, r) projected once;
+* the jaw: the lifting L(p) of the operator's pose (ReducedOperator.set_pose,
+  solver.rom.lifting) in every displacement: le in the bricks' kernels, d0(p) of the
+  cables, the contact nodes and the lower teeth (ReducedContact.set_pose);
 * contact: solver.rom.contact.ReducedContact (the terms' kernels on their nodes only);
 * damping (beta K_n, K_n on the shape at the start of the substep, as the full model):
   matrix-free, in the bricks' kernel, on the cubature's bricks (prepare_damping once per
@@ -52,7 +55,6 @@ class OnlineOperator:
         self.ncab = op.ncab
         if self.ncab:
             self.D = np.ascontiguousarray(op.D)
-            self.d0 = np.ascontiguousarray(op.d0)
             self.AE = np.ascontiguousarray(op.AE, dtype=np.float64)
             self.L0 = np.ascontiguousarray(op.L0, dtype=np.float64)
             self.tension = np.zeros(self.ncab)
@@ -84,8 +86,12 @@ class OnlineOperator:
         if not bd:
             return 1.0
         op = self.op
-        return damping_geometry(q_n, op.Ve, op.dndX, op.wgp, self.ue_n, self.dxn, self.wn,
-                                self.dvn)
+        return damping_geometry(q_n, op.Ve, op.le_n, op.dndX, op.wgp, self.ue_n, self.dxn,
+                                self.wn, self.dvn)
+
+    def set_pose(self):
+        """Take the operator's jaw pose (ReducedOperator.set_pose) into the contact."""
+        self.contact.set_pose(self.op.pose, self.op.L, self.op.lam)
 
     def set_activation(self, a):
         """Activations (10,) of the coming evaluations (one substep)."""
@@ -101,13 +107,13 @@ class OnlineOperator:
         """(f (r,) the internal reduced force, a work array; min det F of the bricks)."""
         op = self.op
         f = self.f
-        jmin = brick_forces_r(q, op.Ve, op.weights, op.dndX, op.wgp, op.params, op.sparams,
-                              self.s, op.form, self.ue_n, self.bd, self.dxn, self.wn,
+        jmin = brick_forces_r(q, op.Ve, op.le, op.weights, op.dndX, op.wgp, op.params,
+                              op.sparams, self.s, op.form, self.ue_n, self.bd, self.dxn, self.wn,
                               self.dvn, self.D0, self.kvol, f)
         if not jmin > 0.0:
             return f, jmin
         if self.ncab:
-            self.taut = cable_forces_r(q, self.D, self.d0, self.AE, self.L0, self.e, False,
+            self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e, False,
                                        True, f, self.kc, self.tension)
         self.contact.evaluate(q, False, f)
         return f, jmin
@@ -127,8 +133,8 @@ class OnlineOperator:
         (solver.rom.kernels.brick_tangents_split); False if a brick inverts. The tangent
         at the current activations is then stiffened_tangent()."""
         op = self.op
-        jmin = brick_tangents_split(q, op.Ve, op.weights, op.dndX, op.wgp, op.params, op.form,
-                                    op.sparams, self.slot, self.kt, self.ks)
+        jmin = brick_tangents_split(q, op.Ve, op.le, op.weights, op.dndX, op.wgp, op.params,
+                                    op.form, op.sparams, self.slot, self.kt, self.ks)
         return bool(jmin > 0.0)
 
     def damping_tangent(self):
@@ -156,8 +162,8 @@ class OnlineOperator:
             return self.contact.tangent(part - 1)
         K = np.zeros((self.r, self.r))
         if self.ncab:
-            self.taut = cable_forces_r(q, self.D, self.d0, self.AE, self.L0, self.e, True,
-                                       False, self.fc, self.kc, self.tension)
+            self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e,
+                                       True, False, self.fc, self.kc, self.tension)
             K += self.kc
         if part is None:
             _, kk = self.contact.evaluate(q, True)

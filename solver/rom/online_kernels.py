@@ -3,7 +3,8 @@ r"""Allocation-free numba kernels of the online reduced step (solver.rom.online)
 Each kernel does one thing and is dispatched once per evaluation from Python.
 
 * ``brick_forces_r``: the cubature's reduced internal force only (no tangent),
-  f_r = sum_e w_e V_e^T (f_e(u_e) + s_e f^s_e(u_e)), u_e = V_e q, the same quantity as
+  f_r = sum_e w_e V_e^T (f_e(u_e) + s_e f^s_e(u_e)), u_e = V_e q + le_e (le: the lifting,
+  the prescribed displacements of the jaw, solver.rom.lifting), the same quantity as
   solver.rom.kernels.reduced_bricks(need_k=False), written for speed:
   - the tissue and the stiffening brick share F at each Gauss point; both energies are
     Mooney-Rivlin isochoric energies linear in (c10, c01, c20, c11, c02), so their
@@ -147,13 +148,14 @@ def _brick_force(ue, dndX, wgp, m10, m01, m20, m11, m02, d, form, fe, dv):
 
 
 @njit(cache=True, fastmath=_FM)
-def brick_forces_r(q, Ve, w, dndX, wgp, params, sparams, s, form, ue_n, bd, dxn, wn, dvn,
-                   D0, kvol, fr):
-    """Fills fr (r,) with the cubature's reduced force at q (r,); Ve (k, 24, r), w (k,),
+def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, dxn, wn,
+                   dvn, D0, kvol, fr):
+    """Fills fr (r,) with the cubature's reduced force at u_e = V_e q + le_e (q (r,), Ve
+    (k, 24, r), le (k, 24) the lifting: the prescribed displacements), w (k,),
     dndX (k, 8, 8, 3), wgp (k, 8), params (k, 6) of the tissue (form 0: mean dilatation,
     1: full), sparams (k, 6) the unit stiffening (c10, c20 used), s (k,) factors - 1.
     With bd != 0, adds the damping force bd V_e^T K_n,e (V_e q - ue_n) of the bricks
-    (ue_n (k, 24) = V_e q_n; K_n on the shape of damping_geometry: dxn, wn, dvn; D0
+    (ue_n (k, 24) = V_e q_n + le_n; K_n on the shape of damping_geometry: dxn, wn, dvn; D0
     (k, 6, 6), kvol (k,): see solver.rom.damping_kernels). Returns the smallest det F (<= 0 or NaN: an inverted brick; fr is then
     partial)."""
     k, _, r = Ve.shape
@@ -171,6 +173,7 @@ def brick_forces_r(q, Ve, w, dndX, wgp, params, sparams, s, form, ue_n, bd, dxn,
             acc = 0.0
             for j in range(r):
                 acc += Ve[e, c, j] * q[j]
+            acc += le[e, c]
             ue[c] = acc
             due[c] = acc - ue_n[e, c]
         pe = params[e]

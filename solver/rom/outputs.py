@@ -45,7 +45,7 @@ def contour_gap(yz, upper, lower):
 
 
 class LipOutputs:
-    """lip_outputs(q): FaceModel.lip_outputs(V q) from the nodes it reads only."""
+    """lip_outputs(q, L): FaceModel.lip_outputs(V q + L) from the nodes it reads only."""
 
     def __init__(self, face, V):
         mesh, lm = face.anatomy.mesh, face.anatomy.landmarks
@@ -61,9 +61,12 @@ class LipOutputs:
         self.u = np.zeros((n, 3))
         self.x = mesh.nodes.copy()
 
-    def __call__(self, q):
+    def __call__(self, q, L=None):
+        """The lip outputs of u = V q + L (L (n, 3): the jaw's lifting, or None)."""
         u, x = self.u, self.x
         u[self.nodes] = (self.Vo @ q).reshape(-1, 3)
+        if L is not None:
+            u[self.nodes] += L[self.nodes]
         x[self.nodes] = self.X[self.nodes] + u[self.nodes]
         lm = self.lm
         out = {"lip_aperture": float(contour_gap(x[:, 1:], self.upper, self.lower))}

@@ -4,7 +4,8 @@ This is the reference implementation of the fast online step (solver.rom.online:
 same quantities, checked against it by tests/test_rom_online.py), also used in training.
 
 With the basis V (3 n, r) (orthonormal on the free DOFs, zero rows on the constrained
-ones) the displacements are u = V q. Backward Euler from (q_n, v_n) with step h, the
+ones) the displacements are u = V q + L(p), L the jaw's prescribed motion at its pose p
+(solver.rom.lifting; 0 with the jaw closed). Backward Euler from (q_n, v_n) with step h, the
 same scheme as the full model (solver.core.transient), projected (Galerkin):
 
     R(q) = M_r (q - q_n - h v_n) / h^2 + C_r (q - q_n) / h
@@ -15,12 +16,13 @@ same scheme as the full model (solver.core.transient), projected (Galerkin):
 * damping: C_r = alpha M_r + beta V^T K_n V, K_n the passive tissue's small-strain
   stiffness on the shape at the start of the substep by the cubature
   (passive_stiffness), as the full model (solver/core/terms/inertia.py); or the constant rest
-  one, K_0 (damping "rest"). The stepping (solver.rom.stepper) decides when it is built;
+  one, K_0 (damping "rest"). A moving jaw adds beta V^T K_n (L(p) - L(p_n)) / h
+  (lifting_damping). The stepping (solver.rom.stepper) decides when it is built;
   the fast online step (solver.rom.online) applies it matrix-free;
 * tissue and activation stiffening: the ECSW cubature (solver.rom.ecsw) over the selected
   bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels);
 * cables (all, exactly): cable c pulls its end points x_p, x_q, with
-  x_q - x_p = d0_c + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a) (3, r); with l, n, the
+  x_q - x_p = d0_c(p) + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a) (3, r); with l, n, the
   tension T = AE (l / L0 - 1 + e_c(a))^+ (solver.core.kernels.cable):
   f_r = sum_c T D_c^T n, K_r = sum_c D_c^T (AE/L0 n n^T + T/l (I - n n^T)) D_c;
 * contact (reduced contact): the penalty contact terms themselves (solver.face.terms.contact),
@@ -34,6 +36,7 @@ import numpy as np
 from solver.core.assembly import block_dofs
 from solver.core.terms.base import State
 from solver.rom.kernels import reduced_bricks
+from solver.rom.lifting import Lifting
 
 
 class _Capture:
@@ -74,6 +77,20 @@ class ReducedOperator:
         self.contact = list(sim.contact)
         self._contact_setup()
         self.fr, self.kr = np.zeros(self.r), np.zeros((self.r, self.r))
+        self.lifting = Lifting(face, conn, face.cables)
+        self.set_pose((0.0, 0.0), (0.0, 0.0))
+
+    def set_pose(self, pose_n, pose, lam=1.0):
+        """The jaw's pose (2,) at the start (pose_n) and the end (pose) of the coming
+        substep, at load factor lam of the caller's step: the lifting L, le (k, 24) of the
+        cubature's bricks and the cables' d0 at pose; L_n and le_n at pose_n."""
+        self.pose = np.array(pose, dtype=np.float64)
+        self.lam = float(lam)
+        self.L_n, self.le_n, _ = self.lifting.at(pose_n)
+        self.L, self.le, d0 = self.lifting.at(pose)
+        if d0 is not None:
+            self.d0 = d0
+        self.moving = bool(np.any(self.le != self.le_n))
 
     # -- setup ---------------------------------------------------------------------------
     def _stiffening_setup(self, face):
@@ -106,7 +123,7 @@ class ReducedOperator:
         nodes = cab.nodes.reshape(-1, 2, 8)
         self.D = (np.einsum("ca,canr->cnr", cab.w[:, 1], self.Vn[nodes[:, 1]])
                   - np.einsum("ca,canr->cnr", cab.w[:, 0], self.Vn[nodes[:, 0]]))
-        self.d0 = cab.X[:, 1] - cab.X[:, 0]
+        self.d0 = np.ascontiguousarray(cab.X[:, 1] - cab.X[:, 0])
         self.AE, self.L0 = cab.AE, cab.L0
         props = face.properties
         from solver.face.anatomy.base import MUSCLE_NAMES
@@ -132,7 +149,8 @@ class ReducedOperator:
     def bricks_part(self, q, a, need_k):
         """(f_r, K_r or None, min det F) of the cubature at q for activations a (10,)."""
         s = self.stiffening_factors(a)
-        jmin = reduced_bricks(q, self.Ve, self.weights, self.dndX, self.wgp, self.params,
+        jmin = reduced_bricks(q, self.Ve, self.le, self.weights, self.dndX, self.wgp,
+                              self.params,
                               self.form, self.sparams, s, need_k, self.fr, self.kr)
         return self.fr.copy(), (self.kr.copy() if need_k else None), jmin
 
@@ -159,7 +177,7 @@ class ReducedOperator:
 
     def reconstruct_contact(self, q):
         """(n, 3) displacements filled at the contact nodes only (zero elsewhere)."""
-        self._uc[self.cnodes] = self.Vc @ q
+        self._uc[self.cnodes] = self.Vc @ q + self.L[self.cnodes]
         return self._uc
 
     def contact_part(self, q, need_k, t=0.0):
@@ -167,7 +185,7 @@ class ReducedOperator:
         K = np.zeros((self.r, self.r)) if need_k else None
         if not self.contact:
             return f, K
-        st = State(self.reconstruct_contact(q), 1.0, t, {})
+        st = State(self.reconstruct_contact(q), self.lam, t, {})
         for term, vb in zip(self.contact, self.cblocks):
             cap = _Capture(need_k)
             term.assemble(st, cap, list(range(len(vb))))
@@ -195,22 +213,37 @@ class ReducedOperator:
         f = fb + fc + fk
         return f, (kb + kc + kk if need_k else None), jmin
 
-    def passive_stiffness(self, q):
+    def passive_stiffness(self, q, dle=None):
         """V^T K_n V by the cubature: the passive tissue's small-strain stiffness on the
-        shape X + V q (as solver.core.terms.inertia.Damping's K_n), (r, r)."""
+        shape X + V q + L(p_n) (as solver.core.terms.inertia.Damping's K_n), (r, r); with
+        dle (k, 24), also V^T K_n dle (r,) (a second return)."""
         from solver.core.element import reference_geometry
         conn = self.mesh.bricks[self.bricks]
-        x = self.mesh.nodes[conn] + np.einsum("kdr,r->kd", self.Ve, q).reshape(-1, 8, 3)
+        x = self.mesh.nodes[conn] + (np.einsum("kdr,r->kd", self.Ve, q)
+                                     + self.le_n).reshape(-1, 8, 3)
         loc = np.arange(8 * len(conn)).reshape(-1, 8)
         det, dndx = reference_geometry(x.reshape(-1, 3), loc)
-        zero = np.zeros(self.r)
-        jmin = reduced_bricks(zero, self.Ve, self.weights, np.ascontiguousarray(dndx),
-                              np.ascontiguousarray(det), self.params, self.form,
-                              self.sparams, np.zeros(len(conn)), True, self.fr, self.kr)
+        Ve, r = self.Ve, self.r
+        if dle is not None:               # one more column: K_n dle comes with K_n
+            Ve, r = np.ascontiguousarray(np.concatenate([Ve, dle[:, :, None]], axis=2)), r + 1
+        fr, kr = np.zeros(r), np.zeros((r, r))
+        jmin = reduced_bricks(np.zeros(r), Ve, np.zeros_like(self.le), self.weights,
+                              np.ascontiguousarray(dndx), np.ascontiguousarray(det),
+                              self.params, self.form, self.sparams, np.zeros(len(conn)), True,
+                              fr, kr)
         if not jmin > 0.0:
             raise FloatingPointError("an inverted brick in the damping's shape")
-        return self.kr.copy()
+        if dle is None:
+            return kr
+        return kr[:-1, :-1].copy(), kr[:-1, -1].copy()
 
-    def displacement(self, q):
-        """(n, 3) full displacements V q."""
-        return (self.V @ q).reshape(-1, 3)
+    def lifting_damping(self, q_n):
+        """(r,) V^T K_n (L_e(p) - L_e(p_n)) by the cubature, K_n on the shape at q_n (the
+        jaw's velocity times h, damped through the tissue; 0 while the jaw stands)."""
+        if not self.moving:
+            return np.zeros(self.r)
+        return self.passive_stiffness(q_n, np.ascontiguousarray(self.le - self.le_n))[1]
+
+    def displacement(self, q, L=None):
+        """(n, 3) full displacements V q + L (L: the lifting at the current pose)."""
+        return (self.V @ q).reshape(-1, 3) + (self.L if L is None else L)

@@ -1,10 +1,11 @@
 r"""`open_simulation(scene, fidelity="realtime")`: the reduced model behind Simulation's API.
 
-The full-order Simulation of the scene is built as usual (coarse generic half face,
-solver.app.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
+The full-order Simulation of the scene is built as usual (the balanced preset's mesh and
+tolerances, solver.app.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
 outputs, and it is the fallback. Its reduced model (solver.rom.store) is looked up by the
 scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
-`python build_fmu.py --rom`), then in the user cache; where there is none,
+`python build_fmu.py --rom`), then in the user cache, then among the models that ship
+with the project (solver/rom/models); where there is none,
 ModelNotTrained names the training command (`rom_train=True` trains one on demand, with
 a message, in this process).
 
@@ -23,8 +24,13 @@ stiffness on the shape at the start of a substep, hyper-reduced by the cubature
 0.3-0.6 mm off the full model on training patterns: the rest K_0 damps turned tissue
 with the bulk modulus, solver/core/terms/inertia.py).
 
+The jaw: u = V q + L(p), the lifting L of the jaw's pose p (solver.rom.lifting), ramping
+within a step as in the full model. A model records the poses its snapshots covered
+(meta "jaw_envelope"); a target pose outside them is outside the model's training
+envelope: a TrustWarning naming it, and the full model from then on (trust "fallback").
+
 Trust check (solver.rom.trust): every `check_every` substeps, the full-order residual of
-the reduced solution u = V q on the free DOFs, with inertia and damping, relative to the
+the reduced solution u = V q + L on the free DOFs, with inertia and damping, relative to the
 force scale max(|f_tissue|, |f_cables|, 1e-3 N): rho = |R_free(V q)| / scale.
 
 rho above the model's trust threshold (calibrated in training: a multiple of the largest
@@ -44,6 +50,7 @@ from solver.app.fidelity import REDUCED, apply_fidelity
 from solver.app.simulation import Simulation, resolve_scene
 from solver.core.transient import StepStats
 from solver.core.units import kg_per_m3
+from solver.face.jaw import JAW_INPUTS, JAW_UNITS
 from solver.rom.reduced import ReducedOperator
 from solver.rom.stepper import METHODS, Stepper
 from solver.rom.store import ModelNotTrained, find_model, load_model, model_path
@@ -82,9 +89,10 @@ class ReducedSimulation(Simulation):
             raise ParameterError(f"method = {method!r} is not one of {METHODS}")
         scene = resolve_scene(scene)
         if fidelity is None and scene.fidelity not in REDUCED:
-            fidelity = "realtime"           # else a scene (file) that asks for it: its keys win
-        if fidelity is not None:
-            scene = apply_fidelity(scene, fidelity)
+            fidelity = "realtime"
+        if fidelity is not None and fidelity != scene.fidelity:
+            scene = apply_fidelity(scene, fidelity)   # else a scene (file) that names it:
+                                                      # its knobs, its own keys winning
         super().__init__(scene, loaded_anatomy, **overrides)
         sc = self.scene
         if sc.analysis != "transient" or sc.gravity != "none" or not (sc.inertia or sc.damping):
@@ -136,10 +144,15 @@ class ReducedSimulation(Simulation):
         its first call, which would otherwise fall on the first steps of a run."""
         state = self.get_state()
         self.stepper.advance(self.q, self.v_r, self.face.activation, self.t,
-                             self.t + self.h_max, StepStats())
+                             self.t + self.h_max, StepStats(), self.face.jaw)
         if self.checker is not None:
             self.checker.residual(self.op.V, self.q, self.q, self.v_r, self.h_max)
         self.set_state(state)
+
+    def _lift(self):
+        """(n, 3) the lifting at the jaw's committed pose (zeros without a jaw)."""
+        jaw = self.face.jaw
+        return self.op.lifting.at(None if jaw is None else jaw.start)[0]
 
     def trust_residual(self):
         """rho (solver.rom.trust) at the current reduced state (after a substep)."""
@@ -149,12 +162,13 @@ class ReducedSimulation(Simulation):
                                       self.stepper.beta, 1.0 if sc.inertia else 0.0,
                                       self.stepper.damping)
         q_n, v_n, h = self.stepper.last
-        return self.checker.residual(self.op.V, self.q, q_n, v_n, h)
+        return self.checker.residual(self.op.V, self.q, q_n, v_n, h, self.op.L, self.op.L_n)
 
     def _to_full(self, q, v, activation_start):
         """Hand the reduced state to the full model (from then on, mode 'full')."""
-        self.face.model.u = self.op.displacement(q).copy()
-        self.integrator.v = self.op.displacement(v).copy()
+        L = self._lift()
+        self.face.model.u = self.op.displacement(q, L).copy()
+        self.integrator.v = self.op.displacement(v, 0.0 * L).copy()
         self.integrator.t = self.t
         self.face.activation.start = activation_start
         self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
@@ -167,10 +181,10 @@ class ReducedSimulation(Simulation):
         if not (np.isfinite(t_end) and t_end > self.t):
             raise ParameterError(f"step end {t_end!r} must be after the current time "
                                  f"{self.t!r}")
-        act = self.face.activation
+        act, jaw = self.face.activation, self.face.jaw
         start = (self.q, self.v_r, act.start.copy(), self._substeps)
         stats = StepStats()
-        ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats)
+        ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats, jaw)
         if ok:
             self.q, self.v_r = q, v
             self._substeps += stats.substeps
@@ -196,43 +210,50 @@ class ReducedSimulation(Simulation):
             if not ok:
                 act.start = start[2]
                 act.target = act.start.copy()
+                self.face.end_step(False)                   # the jaw's target back
                 stats.converged = False
                 self.last = stats
                 return stats
             warnings.warn(f"realtime model at t = {t_end:.4g} s: {what}", TrustWarning,
                           stacklevel=2)
         act.commit()
+        self.face.end_step(True)                            # the jaw's pose committed
         self.t = float(t_end)
         self.last = stats
         return stats
 
     def set_jaw(self, opening=None, protrusion=None):
-        """As Simulation.set_jaw. The reduced models are trained with the jaw closed: a
-        jaw pose other than closed is outside their envelope, so the simulation goes on
-        with the full model (mode 'full', a TrustWarning naming the cause)."""
-        if self.face.jaw is None:
-            return super().set_jaw(opening, protrusion)     # refused: no jaw
-        self.face.jaw.set(opening, protrusion)              # checked, or refused
-        if self.mode == "rom" and np.any(self.face.jaw.target != 0.0):
-            warnings.warn(f"realtime model at t = {self.t:.4g} s: jaw pose "
-                          f"{tuple(float(v) for v in self.face.jaw.target)} outside its "
-                          "training envelope (trained with the jaw closed); switching to "
-                          "the full model", TrustWarning, stacklevel=2)
-            self._to_full(self.q, self.v_r, self.face.activation.start.copy())
-        self.face.set_jaw(opening, protrusion)
+        """As Simulation.set_jaw. A target pose outside the poses the model was trained
+        on (meta "jaw_envelope") is outside its envelope: the simulation goes on with the
+        full model (mode 'full', a TrustWarning naming the input and the envelope)."""
+        self.face.set_jaw(opening, protrusion)              # checked, or refused
+        if self.mode != "rom" or self.trust == "off":
+            return
+        envelope = self.rom_meta.get("jaw_envelope", {})
+        for name, value in zip(JAW_INPUTS, self.face.jaw.target):
+            lo, hi = envelope.get(name, (0.0, 0.0))
+            if not lo - 1e-9 <= value <= hi + 1e-9:
+                warnings.warn(f"realtime model at t = {self.t:.4g} s: {name} = {value:g} "
+                              f"{JAW_UNITS[name]} is outside its training envelope "
+                              f"[{lo:g}, {hi:g}]; switching to the full model",
+                              TrustWarning, stacklevel=2)
+                if self.trust == "fallback":
+                    self._to_full(self.q, self.v_r, self.face.activation.start.copy())
+                return
 
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
             return super().outputs()
+        L = self._lift()
         if "muscle_strains" in self.scene.record:
-            u = self.op.displacement(self.q)
+            u = self.op.displacement(self.q, L)
             out = self.face.lip_outputs(u)
             for m, (lo, hi) in self.face.region_strains(u).items():
                 out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
         else:
-            out = self._outputs(self.q)
-        out["incisor_opening"] = 0.0                    # the jaw is closed in mode 'rom'
+            out = self._outputs(self.q, L)
+        out["incisor_opening"] = self.face.incisor_opening()
         out["contact_force"] = self.stepper.contact_force
         out["newton_iterations"] = self.last.newton_iterations
         out["substeps"] = self.last.substeps
@@ -242,15 +263,18 @@ class ReducedSimulation(Simulation):
     @property
     def u(self):
         """(n, 3) the current displacements (reconstructed in mode 'rom')."""
-        return self.face.u if self.mode == "full" else self.op.displacement(self.q)
+        return self.face.u if self.mode == "full" else self.op.displacement(self.q,
+                                                                             self._lift())
 
     def get_state(self):
         if self.mode == "full":
             return {**super().get_state(), "mode": "full"}
         self.stepper.reset_caches()          # the next step starts afresh, as after set_state
-        return {"t": self.t, "u": self.op.displacement(self.q).copy(),
-                "v": self.op.displacement(self.v_r).copy(),
-                "activation": self.face.activation.start.copy(), "h": self.h_max,
+        L = self._lift()
+        return {"t": self.t, "u": self.op.displacement(self.q, L).copy(),
+                "v": self.op.displacement(self.v_r, 0.0 * L).copy(),
+                "activation": self.face.activation.start.copy(), "jaw": np.array(self.jaw),
+                "h": self.h_max,
                 "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom"}
 
     def set_state(self, state):
@@ -260,9 +284,10 @@ class ReducedSimulation(Simulation):
             return
         self.mode = "rom"
         self.t = float(state["t"])
+        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
         V = self.op.V
         self.q = np.array(state["q"], float) if "q" in state else \
-            V.T @ np.asarray(state["u"], float).ravel()
+            V.T @ (np.asarray(state["u"], float).ravel() - self._lift().ravel())
         self.v_r = np.array(state["v_r"], float) if "v_r" in state else \
             V.T @ np.asarray(state["v"], float).ravel()
         self.face.activation.start = np.array(state["activation"], dtype=float)

@@ -2,8 +2,9 @@ r"""Reduced time stepping: backward Euler in q at substeps of at most h_max.
 
     R(q) = M_r (q - q_n - h v_n) / h^2 + C_r (q - q_n) / h + f(q, a) = 0
 
-(solver.rom.reduced's docstring), activations ramping within a caller's step as in the
-full model (hold "ramp"). A substep that does not converge in max_iter iterations (or
+(solver.rom.reduced's docstring), activations and the jaw's pose ramping within a
+caller's step as in the full model (hold "ramp"; the jaw's lifting L(p) of each substep's
+end and start: solver.rom.lifting). A substep that does not converge in max_iter iterations (or
 inverts a brick) is split in four, twice at most.
 
 Damping C_r = alpha M_r + beta V^T K_n V, K_n the passive small-strain stiffness on the
@@ -110,9 +111,10 @@ class Stepper:
         self._damping_age += 1
 
     # -- substeps -------------------------------------------------------------------------
-    def advance(self, q, v, act, t0, t_end, stats):
-        """Substeps from (q, v) at t0 to t_end (activations act: solver.face.activation, ramping
-        over the step); (ok, q, v). stats: a StepStats to fill."""
+    def advance(self, q, v, act, t0, t_end, stats, jaw=None):
+        """Substeps from (q, v) at t0 to t_end (activations act: solver.face.activation,
+        and the pose of jaw (solver.face.jaw.Jaw or None), ramping over the step); (ok, q,
+        v). stats: a StepStats to fill."""
         span = t_end - t0
         n = max(1, int(math.ceil(span / self.h_max * (1.0 - 1e-9))))
         pieces = [(k + 1) / n for k in range(n)]
@@ -122,6 +124,10 @@ class Stepper:
         while i < len(pieces):
             lam = pieces[i]
             h = (lam - lam_prev) * span
+            if jaw is not None:
+                self.op.set_pose(jaw.at(lam_prev), jaw.at(lam), lam)
+                if self.online is not None:
+                    self.online.set_pose()
             self._damping(q)
             q_new, its, why = newton(q, v, h, act.at(lam), t0 + lam * span)
             stats.newton_iterations += its
@@ -208,6 +214,9 @@ class Stepper:
         A = self._A
         q = q_n + h * v_n
         b = M @ q / (h * h) + C @ q_n / h
+        if not self._current and self.beta and self.op.moving:
+            # damping "rest": the jaw's motion damped by K_n on the shape at q_n all the same
+            b = b - (self.beta / h) * self.op.lifting_damping(q_n)
         if self._a_prev is not None:          # predictor: the last substep's acceleration
             q = q + (h * h) * self._a_prev
         r_prev, dq, dn_prev = np.inf, None, None
@@ -268,6 +277,8 @@ class Stepper:
         A = self.M_r / h ** 2 + self.C_r / h
         q = q_n + h * v_n
         b = self.M_r @ (q_n + h * v_n) / h ** 2 + self.C_r @ q_n / h
+        if op.moving and self.beta:       # the jaw's motion damped through the tissue
+            b = b - (self.beta / h) * op.lifting_damping(q_n)
         refresh = (self._kb is None or self._since_refresh >= self.refresh
                    or self._last_iters > 3)
         r_prev, dq_prev = np.inf, None

@@ -8,7 +8,11 @@ checked on loading, so a model is never used for another face or another set of 
 (nor after the full-order physics changed: PHYSICS).
 
 Cache folder: <user cache>/rom (solver.core._cache.user_cache_dir: $FACEFMU_CACHE_DIR, else
-$XDG_CACHE_HOME/facefmu, else ~/.cache/facefmu), or $FACEFMU_ROM_DIR. Files are plain
+$XDG_CACHE_HOME/facefmu, else ~/.cache/facefmu), or $FACEFMU_ROM_DIR. Shipped models:
+solver/rom/models (SHIPPED), the default scene's, made by `python benchmarks/rom_train.py
+--ship` (their meta records the command and the commit); looked up after the user cache,
+so that a model the user trained for the same key wins. stale_models() lists the shipped
+files whose key no built-in scene has any more (tests/test_rom_shipped.py). Files are plain
 numpy .npz (no pickles) that can be copied and shipped; `load_model(path)` reads one
 from anywhere.
 
@@ -30,7 +34,9 @@ from solver.core._cache import user_cache_dir
 from solver.core.errors import FaceFMUError
 from solver.face.terms.contact import PENALTY
 
-FORMAT = 1
+# The file's layout and what a model holds: 2: u = V q + L(jaw pose) (solver.rom.lifting),
+# snapshots with the jaw moving and meta "jaw_envelope".
+FORMAT = 2
 # The full-order physics a model's snapshots came from: bumped when a term's forces change
 # (the key then differs, so older models and cached snapshot runs are not used).
 # 2: lip contact faded beyond the edge of a slave's candidate triangles;
@@ -40,6 +46,7 @@ FORMAT = 1
 #    master's nodes, 24 candidate triangles per lip slave.
 PHYSICS = 5
 ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
+SHIPPED = Path(__file__).resolve().parent / "models"
 
 
 class ModelNotTrained(FaceFMUError, LookupError):
@@ -98,8 +105,8 @@ def save_model(path, arrays, meta):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, meta=np.array(json.dumps(meta, sort_keys=True)),
-             **{k: np.asarray(arrays[k]) for k in ARRAYS})
+    np.savez_compressed(tmp, meta=np.array(json.dumps(meta, sort_keys=True)),
+                        **{k: np.asarray(arrays[k]) for k in ARRAYS})
     os.replace(tmp, path)
     return path
 
@@ -122,10 +129,11 @@ TRAIN_COMMAND = "python benchmarks/rom_train.py --scene SCENE"
 
 def find_model(scene, folders=()):
     """(arrays, meta) of the model of scene: the first of model_path(scene, folder) that
-    exists over folders (a path or a sequence of paths) and then the user cache; else
+    exists over folders (a path or a sequence of paths), the user cache and SHIPPED; else
     ModelNotTrained naming the training command."""
     folders = [folders] if isinstance(folders, (str, Path)) else list(folders or ())
-    paths = [model_path(scene, f) for f in folders] + [model_path(scene)]
+    paths = [model_path(scene, f) for f in folders] + [model_path(scene),
+                                                       model_path(scene, SHIPPED)]
     for path in paths:
         if path.is_file():
             return load_model(path, model_key(scene))
@@ -142,3 +150,32 @@ def find_model(scene, folders=()):
         + (" (SCENE: this scene's TOML file)" if name == "SCENE" else "")
         + "; or pass rom_train=True to train on demand. An FMU carries models packed by "
         "python build_fmu.py --rom FILE.npz (or --with-realtime for the speech scene)")
+
+
+def shipped_scenes():
+    """The built-in scenes whose realtime model ships (SHIPPED): default (and every
+    built-in scene of the same key, e.g. speech)."""
+    return ("default",)
+
+
+def stale_models(folder=SHIPPED):
+    """The model files in folder whose stored key is not the current key of the scene
+    they name (meta "scene", at the realtime knobs), or that fail to load: [(file name,
+    reason)]. Empty when every model matches the current physics."""
+    from solver.app.fidelity import apply_fidelity
+    from solver.app.simulation import resolve_scene
+    out = []
+    for path in sorted(Path(folder).glob("*.npz")):
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                meta = json.loads(str(f["meta"]))
+            key = model_key(apply_fidelity(resolve_scene(meta["scene"]), "realtime"))
+        except Exception as exc:                        # reported, not raised
+            out.append((path.name, f"{type(exc).__name__}: {exc}"))
+            continue
+        if meta.get("key") != json.loads(json.dumps(key)):
+            diff = sorted(k for k in key if meta.get("key", {}).get(k) != key[k])
+            out.append((path.name, f"trained for other settings: {diff}"))
+        elif path.name != file_name(key):
+            out.append((path.name, f"named {path.name}, its key's name is {file_name(key)}"))
+    return out

@@ -1,17 +1,23 @@
 r"""Offline training of a realtime (reduced) model from full-order snapshot runs.
 
 1. Snapshots: `runs` full-order transient runs of `duration` s (the scene's full model at
-   the realtime knobs: coarse generic half face, loose tolerances), each under a random
+   the realtime knobs: the balanced preset's mesh and tolerances), each under a random
    activation pattern of the scene's driven muscles (`random_schedules`: one to four
    muscles ramping 0 -> U(0.1, 1) over U(0.05, 0.1) s from U(0, 0.05) s, half of them
    relaxing again; otherwise one run in four co-activates five or more at U(0, 0.6)); the
    displacements are recorded every `interval` s. The first 2 x (driven muscles) runs
    each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
-   at U(0.1, 1); a run that takes longer than max_wall keeps the snapshots it has. Runs are independent tasks: through a
-   dask client (solver.sweep.Sweep, `snapshot_task`) or in this process.
+   at U(0.1, 1). Where the face has a jaw, half of the runs move it as well
+   (random_jaw: the opening ramping to U(0, 20) deg, the protrusion, one run in three, to
+   U(-1, 10) mm: solver.face.jaw.JAW_RANGES), and `jaw_runs` more runs open it to
+   U(5, 20) deg with one or two muscles; the poses covered are the model's
+   "jaw_envelope". A run that takes longer than max_wall keeps the snapshots it has.
+   Runs are independent tasks: through a dask client (solver.sweep.Sweep,
+   `snapshot_task`) or in this process.
 2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy.
 3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
-   basis, u = V V^T u_j, with their activations (tissue + stiffening per brick).
+   basis, u = V V^T u_j + (u_j on the prescribed DOFs: the jaw's lifting), with their
+   activations (tissue + stiffening per brick).
 4. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping).
 5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns;
    the threshold is `trust_factor` times the largest full-order residual rho met
@@ -24,6 +30,7 @@ import time
 import numpy as np
 
 from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.face.jaw import JAW_INPUTS, JAW_RANGES
 from solver.app.scene import Schedule
 from solver.rom.ecsw import ecsw, scale_rows
 from solver.rom.kernels import element_forces
@@ -70,6 +77,31 @@ def random_schedules(rng, muscles, duration, primary=None):
     return tuple(out)
 
 
+def _ramp(rng, name, level, duration):
+    """A schedule: 0 -> level over U(0.05, 0.15) s from U(0, 0.05) s, back to
+    U(0, 0.5) level one time in two."""
+    t0 = rng.uniform(0.0, 0.05)
+    t1 = min(t0 + rng.uniform(0.05, 0.15), duration)
+    times, values = [0.0, t0, t1], [0.0, 0.0, level]
+    if rng.random() < 0.5 and t1 + 0.04 < duration:
+        t2 = min(t1 + rng.uniform(0.0, 0.03), duration)
+        times += [t2, min(t2 + rng.uniform(0.04, 0.1), duration)]
+        values += [level, rng.uniform(0.0, 0.5) * level]
+    times.append(max(duration, times[-1]))
+    values.append(values[-1])
+    return _pwl(name, times, values)
+
+
+def random_jaw(rng, duration, opening=(0.0, JAW_RANGES["jaw_opening"][1])):
+    """Random jaw schedules (module docstring): the opening to U(opening), and one time in
+    three the protrusion to U(JAW_RANGES)."""
+    out = [_ramp(rng, "jaw_opening", rng.uniform(*opening), duration)]
+    if rng.random() < 1.0 / 3.0:
+        out.append(_ramp(rng, "jaw_protrusion", rng.uniform(*JAW_RANGES["jaw_protrusion"]),
+                         duration))
+    return tuple(out)
+
+
 def drive(sim, schedules, duration, interval, on_record=None, max_wall=None):
     """Step sim through schedules (Schedule tuple) to duration at interval; lip outputs
     (list of dicts with time) at every interval (t = 0 included). max_wall (s): stop
@@ -81,8 +113,11 @@ def drive(sim, schedules, duration, interval, on_record=None, max_wall=None):
         if max_wall is not None and time.perf_counter() - t_start > max_wall:
             break
         values = {m: 0.0 for m in sim.face.muscles}
-        values.update({s.muscle: s.value(t) for s in schedules})
+        values.update({s.muscle: s.value(t) for s in schedules if s.muscle not in JAW_INPUTS})
         sim.set_activations(values)
+        jaw = {s.muscle: s.value(t) for s in schedules if s.muscle in JAW_INPUTS}
+        if jaw:
+            sim.set_jaw(jaw.get("jaw_opening"), jaw.get("jaw_protrusion"))
         stats = sim.step(float(t))
         if not stats.converged:
             raise RuntimeError(f"step to t = {t:.4g} s failed: {stats.reason}")
@@ -97,16 +132,18 @@ def snapshot_task(task, scene, sim=None):
     "interval", "max_wall" (optional, s: the run stops there, keeping its snapshots),
     **Simulation keyword arguments}; scene a solver.app.scene.Scene; sim: a full-order
     Simulation of scene to reuse (reset to rest). Returns {"label", "U" (3 n, s)
-    displacements, "A" (s, 10) activations, "rows", "wall_s", "error"}."""
+    displacements, "A" (s, 10) activations, "P" (s, 2) jaw poses, "rows", "wall_s",
+    "error"}."""
     from solver.app.simulation import Simulation
     out = {"label": task.get("label", ""), "error": ""}
     kw = {k: v for k, v in task.items()
           if k not in ("label", "schedules", "duration", "interval", "max_wall")}
-    U, A = [], []
+    U, A, P = [], [], []
 
     def keep(sim):
         U.append(sim.face.u.ravel().copy())
         A.append(sim.face.activation.start.copy())
+        P.append(np.array(sim.jaw))
     try:
         t0 = time.perf_counter()
         if sim is None:
@@ -120,18 +157,43 @@ def snapshot_task(task, scene, sim=None):
     except Exception as exc:                       # reported per task
         out["error"] = f"{type(exc).__name__}: {exc}"
         return out
-    out["U"], out["A"] = np.array(U).T, np.array(A)
+    out["U"], out["A"], out["P"] = np.array(U).T, np.array(A), np.array(P).reshape(-1, 2)
     return out
 
 
-def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None):
+def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_runs=0):
+    """The training runs' tasks (module docstring); jaw_runs > 0: the face has a jaw,
+    half of the runs move it, and jaw_runs more open it."""
     rng = np.random.default_rng(seed)
     driven = list(scene.driven)
     order = list(rng.permutation(driven))
-    return [{"label": f"pattern {i}", "schedules": random_schedules(
-                rng, driven, duration, order[i % len(order)] if i < 2 * len(order) else None),
-             "duration": duration, "interval": interval, "max_wall": max_wall}
-            for i in range(runs)]
+    tasks = []
+    for i in range(runs):
+        sched = random_schedules(rng, driven, duration,
+                                 order[i % len(order)] if i < 2 * len(order) else None)
+        if jaw_runs and rng.random() < 0.5:
+            sched += random_jaw(rng, duration)
+        tasks.append({"label": f"pattern {i}", "schedules": sched})
+    for i in range(jaw_runs):
+        muscles = rng.choice(driven, rng.integers(1, 3), replace=False) if driven else []
+        sched = tuple(_ramp(rng, str(m), rng.uniform(0.1, 1.0), duration) for m in muscles)
+        sched += random_jaw(rng, duration, (5.0, JAW_RANGES["jaw_opening"][1]))
+        tasks.append({"label": f"jaw pattern {i}", "schedules": sched})
+    for t in tasks:
+        t.update(duration=duration, interval=interval, max_wall=max_wall)
+    return tasks
+
+
+def jaw_envelope(tasks):
+    """{jaw input: [lo, hi]} of the poses the tasks' schedules reach (0 included: the
+    jaw rests closed where no schedule moves it)."""
+    env = {name: [0.0, 0.0] for name in JAW_INPUTS}
+    for t in tasks:
+        for s in t["schedules"]:
+            if s.muscle in env:
+                lo, hi = env[s.muscle]
+                env[s.muscle] = [min(lo, min(s.values)), max(hi, max(s.values))]
+    return env
 
 
 def _task_file(folder, scene, task):
@@ -145,14 +207,14 @@ def _task_file(folder, scene, task):
 def _save_result(path, r):
     import json
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, U=r["U"], A=r["A"], rows=np.array(json.dumps(r["rows"])),
+    np.savez(path, U=r["U"], A=r["A"], P=r["P"], rows=np.array(json.dumps(r["rows"])),
              wall_s=r["wall_s"])
 
 
 def _load_result(path, label):
     import json
     with np.load(path, allow_pickle=False) as f:
-        return {"label": label, "error": "", "U": f["U"], "A": f["A"],
+        return {"label": label, "error": "", "U": f["U"], "A": f["A"], "P": f["P"],
                 "rows": json.loads(str(f["rows"])), "wall_s": float(f["wall_s"])}
 
 
@@ -209,17 +271,21 @@ def brick_data(sim, V):
 
 
 def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None):
-    """ECSW over up to `states` snapshot columns of U (with activations A): (bricks,
-    weights, relative residual)."""
+    """ECSW over up to `states` snapshot columns of U (with activations A), projected on
+    V on the free DOFs, as they are on the prescribed ones (the jaw): (bricks, weights,
+    relative residual)."""
     op = brick_data(sim, V)
     mesh = sim.anatomy.mesh
     nz = np.flatnonzero(np.abs(U).max(axis=0) > 0)
     pick = nz[np.unique(np.linspace(0, len(nz) - 1, min(states, len(nz))).astype(int))]
     r, N = V.shape[1], mesh.n_bricks
+    fixed = np.setdiff1d(np.arange(V.shape[0]), sim.face.model.system().free)
     G = np.empty((len(pick) * r, N))
     fe = np.empty((N, 24))
     for j, c in enumerate(pick):
-        u = (V @ (V.T @ U[:, c])).reshape(-1, 3)
+        u = V @ (V.T @ U[:, c])
+        u[fixed] = U[fixed, c]
+        u = u.reshape(-1, 3)
         element_forces(u, mesh.bricks, op.dndX, op.wgp, op.params, op.form, op.sparams,
                        op.stiffening_factors(A[c]), fe)
         G[j * r:(j + 1) * r] = np.einsum("ed,edr->re", fe, op.Ve)
@@ -245,10 +311,11 @@ def reduced_matrices(sim, V):
 def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client=None,
           energy=1.0 - 1e-6, r_max=60, ecsw_tol=1e-2, ecsw_states=150, calibration_runs=3,
           trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
-          sim_only=False, budget=None):
+          sim_only=False, budget=None, jaw_runs=8, provenance=None):
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
-    runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept)."""
+    runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept).
+    provenance: a dict stored in the model's meta (e.g. scene name, command, commit)."""
     from solver.app.simulation import Simulation
     t_start = time.perf_counter()
     if sim is None:
@@ -257,7 +324,8 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
         sim = Simulation(scene)
     scene = sim.scene
     base = scene.with_overrides(schedules=())
-    tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall)
+    jaw_runs = jaw_runs if sim.face.jaw is not None else 0
+    tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall, jaw_runs)
     from solver.rom.store import cache_dir, key_hash
     folder = cache_dir() / "snapshots" / key_hash(model_key(base))
     results = collect(base, tasks, client, progress, sim, None if sim_only else folder,
@@ -278,9 +346,11 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     arrays = {"V": V, "bricks": bricks, "weights": weights, "M_r": M_r, "K0_r": K0_r,
               "sigma": sigma, "trust_threshold": np.array([np.inf])}
     r = V.shape[1]
-    meta = {"key": model_key(scene), "basis_size": r, "runs_used": len(results),
+    meta = {"scene": scene.name, **(provenance or {}), "key": model_key(scene),
+            "basis_size": r, "runs_used": len(results),
             "captured_energy": captured_energy(sigma, r), "snapshots": int(U.shape[1]),
-            "runs": runs, "duration": duration, "interval": interval, "seed": seed,
+            "runs": runs, "jaw_runs": jaw_runs, "jaw_envelope": jaw_envelope(tasks),
+            "duration": duration, "interval": interval, "seed": seed,
             "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
             "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
             "pod_s": t_pod - t_start - t_snap, "ecsw_s": t_ecsw - t_pod}

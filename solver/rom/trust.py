@@ -1,4 +1,5 @@
-r"""The trust check of a reduced state: the full-order residual of u = V q, relative.
+r"""The trust check of a reduced state: the full-order residual of u = V q + L, relative
+(L: the jaw's lifting, solver.rom.lifting).
 
 After a substep from (q_n, v_n) with step h, on the free DOFs, with inertia and damping
 (C = alpha M + beta K_n, K_n on all bricks at u_n; K_0 with damping "rest"):
@@ -99,9 +100,12 @@ class TrustCheck:
             raise FloatingPointError("an inverted brick in the damping's shape")
         return self._kdu.ravel().copy()
 
-    def residual(self, V, q, q_n, v_n, h):
-        """rho (module docstring) of u = V q after the substep from (q_n, v_n), step h."""
-        u, un = V @ q, V @ q_n
+    def residual(self, V, q, q_n, v_n, h, L=0.0, L_n=0.0):
+        """rho (module docstring) of u = V q + L after the substep from (q_n, v_n), step h
+        (L, L_n (n, 3): the lifting at the substep's end and start; the cables and the
+        teeth at the jaw's target pose, the end of the caller's step)."""
+        u = V @ q + np.ravel(L)
+        un = V @ q_n + np.ravel(L_n)
         f = self.internal_forces(u)
         f_cab = self.f_cables
         du = (u - un) / h

@@ -73,9 +73,15 @@ class Cables(Term):
         positions, the mandible's insertions moved by the jaw's pose."""
         if self.jaw is None or not self.jaw.moving or not self.jaw_ends.any():
             return self.X
+        return self.rest_points_at(self.jaw.at(lam))
+
+    def rest_points_at(self, pose):
+        """(c, 2, 3) the cable ends' reference positions at a jaw pose (2,) (opening deg,
+        protrusion mm): the rest positions, the mandible's insertions moved rigidly."""
+        if self.jaw is None or not self.jaw_ends.any() or not np.any(np.asarray(pose)):
+            return self.X
         X = self.X.copy()
-        X[self.jaw_ends] = self.jaw.geometry.transform(self.X[self.jaw_ends],
-                                                       self.jaw.at(lam))
+        X[self.jaw_ends] = self.jaw.geometry.transform(self.X[self.jaw_ends], pose)
         return X
 
     def assemble(self, state, asm, block_ids):

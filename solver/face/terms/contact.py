@@ -532,10 +532,14 @@ class RigidContact(_Report, Term):
         self.pose = np.zeros(2)
 
     def _move(self, lam):
-        """Put the moving vertices at the jaw's pose at load factor lam (normals and the
-        candidate search follow); nothing to do where the pose is unchanged."""
+        """Put the moving vertices at the jaw's pose at load factor lam."""
+        self.move_to(self.motion[0].at(lam))
+
+    def move_to(self, pose):
+        """Put the moving vertices at a jaw pose (2,) (normals and the candidate search
+        follow); nothing to do where the pose is unchanged."""
         jaw, moving = self.motion
-        pose = jaw.at(lam)
+        pose = np.array(pose, dtype=np.float64)
         if np.array_equal(pose, self.pose):
             return
         self.pose = pose
