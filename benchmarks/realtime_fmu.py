@@ -14,8 +14,8 @@ error against the full-order model on a lip gesture.
    simulated time; `--repeat` runs (fresh instances), the best and all reported.
 3. The same reduced model in this process (open_simulation(..., fidelity="realtime"),
    same steps): its wall time, and its outputs against the FMU's.
-4. The full-order model of the scene at the realtime knobs (the balanced preset's mesh
-   and tolerances; 5 ms caller steps, as solver.rom.accuracy) on the same gesture: the
+4. The full-order model of the scene at the realtime knobs (coarse generic half face,
+   loose tolerances; 5 ms caller steps, as solver.rom.accuracy) on the same gesture: the
    largest difference in lip aperture and protrusion over its 5 ms records (--no-full
    leaves it out).
 

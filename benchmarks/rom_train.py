@@ -10,8 +10,8 @@
 
 SCENE: a built-in scene or a TOML file; the default, `speech` (solver/app/scenes/speech.toml),
 drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
-scene's full-order model at the realtime knobs (solver.app.fidelity.REDUCED: the balanced
-preset's mesh and tolerances) and cached in the user cache (solver.rom.store; the path is printed), where
+scene's full-order model at the realtime knobs (solver.app.fidelity.REDUCED: coarse generic
+half face, loose tolerances) and cached in the user cache (solver.rom.store; the path is printed), where
 `open_simulation(scene, fidelity="realtime")` finds it. Snapshot runs are independent tasks on
 a dask LocalCluster (solver.sweep.Sweep, `--workers` one-thread processes) or a
 running scheduler; `--no-dask` runs them here. See solver/rom/train.py for the steps.

@@ -109,6 +109,12 @@ class FaceFMU(Fmi2Slave):
                                        variability=Fmi2Variability.discrete,
                                        description="failed substeps retried with half the "
                                                    "step in the last doStep"))
+        self.rom_fallbacks = 0
+        self.register_variable(Integer("rom_fallbacks", causality=Fmi2Causality.output,
+                                       variability=Fmi2Variability.discrete,
+                                       description="fidelity realtime: the times the "
+                                                   "reduced model handed over to the full "
+                                                   "model so far (0 otherwise)"))
         self._set = set()                       # the parameters the master has set
 
         def fixed(name):
@@ -263,14 +269,13 @@ class FaceFMU(Fmi2Slave):
         self.newton_iterations = int(out["newton_iterations"])
         self.substeps = int(out["substeps"])
         self.cutbacks = int(out["cutbacks"])
+        self.rom_fallbacks = int(out.get("rom_fallbacks", 0))
 
     # -- state ---------------------------------------------------------------------------
     def _get_fmu_state(self):
         state = {name: getattr(self, name) for name in
                  list(MUSCLE_NAMES) + list(JAW_INPUTS) + list(OUTPUT_DESCRIPTIONS)
-                 + ["newton_iterations",
-                                                                  "substeps", "cutbacks",
-                                                                  "time"]}
+                 + ["newton_iterations", "substeps", "cutbacks", "rom_fallbacks", "time"]}
         if self.sim is not None:
             state["sim"] = self.sim.get_state()
         return state

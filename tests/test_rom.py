@@ -146,6 +146,7 @@ def test_trust_check_fires_far_outside_the_training_range(trained):
             if rom.mode == "full":
                 break
     assert rom.mode == "full" and rom.trust_history[-1][1] > rom.trust_threshold
+    assert rom.outputs()["rom_fallbacks"] == 1                  # counted (an FMU output)
 
 
 def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,

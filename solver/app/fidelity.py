@@ -54,9 +54,10 @@ FIDELITIES = tuple(PRESETS)
 # fidelity="realtime") (solver.entry), a scene file's `fidelity = "realtime"`, `facefmu run
 # --fidelity realtime` and the FMU's fidelity parameter open a solver.rom.simulation.
 # ReducedSimulation, whose full-order model (training snapshots, fallback) has these
-# knobs: the balanced preset's mesh and tolerances, so that the reduced model carries
-# balanced's accuracy against the fine face.
-REDUCED = {"realtime": dict(PRESETS["balanced"])}
+# knobs: the coarse generic half face at loose tolerances (a reduced model of the
+# balanced mesh: docs/dev-notes/realtime-balanced.md).
+REDUCED = {"realtime": dict(level="coarse", half=True, formulation="mean_dilatation",
+                            **LOOSE)}
 
 
 def fidelity_overrides(name, anatomy="generic"):

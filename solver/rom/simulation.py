@@ -1,7 +1,7 @@
 r"""`open_simulation(scene, fidelity="realtime")`: the reduced model behind Simulation's API.
 
-The full-order Simulation of the scene is built as usual (the balanced preset's mesh and
-tolerances, solver.app.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
+The full-order Simulation of the scene is built as usual (coarse generic half face, loose
+tolerances: solver.app.fidelity.REDUCED["realtime"]): it provides the anatomy, terms, activations and lip
 outputs, and it is the fallback. Its reduced model (solver.rom.store) is looked up by the
 scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
 `python build_fmu.py --rom`), then in the user cache, then among the models that ship
@@ -134,6 +134,7 @@ class ReducedSimulation(Simulation):
             TrustCheck(self, kg_per_m3(sc.density), alpha, beta, m_scale, damping)
         self._outputs = LipOutputs(self.face, V)
         self.mode = "rom"
+        self.fallbacks = 0               # handovers to the full model (_to_full)
         self.trust_history = []          # (t, rho) of every check
         if warmup:
             self.warmup()
@@ -173,6 +174,7 @@ class ReducedSimulation(Simulation):
         self.face.activation.start = activation_start
         self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
         self.mode = "full"
+        self.fallbacks += 1
 
     def step(self, t_end):
         """Advance to t_end; StepStats (converged False leaves the state at its start)."""
@@ -244,7 +246,7 @@ class ReducedSimulation(Simulation):
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
-            return super().outputs()
+            return {**super().outputs(), "rom_fallbacks": self.fallbacks}
         L = self._lift()
         if "muscle_strains" in self.scene.record:
             u = self.op.displacement(self.q, L)
@@ -258,6 +260,7 @@ class ReducedSimulation(Simulation):
         out["newton_iterations"] = self.last.newton_iterations
         out["substeps"] = self.last.substeps
         out["cutbacks"] = self.last.cutbacks
+        out["rom_fallbacks"] = self.fallbacks
         return out
 
     @property
@@ -268,16 +271,17 @@ class ReducedSimulation(Simulation):
 
     def get_state(self):
         if self.mode == "full":
-            return {**super().get_state(), "mode": "full"}
+            return {**super().get_state(), "mode": "full", "fallbacks": self.fallbacks}
         self.stepper.reset_caches()          # the next step starts afresh, as after set_state
         L = self._lift()
         return {"t": self.t, "u": self.op.displacement(self.q, L).copy(),
                 "v": self.op.displacement(self.v_r, 0.0 * L).copy(),
                 "activation": self.face.activation.start.copy(), "jaw": np.array(self.jaw),
-                "h": self.h_max,
+                "h": self.h_max, "fallbacks": self.fallbacks,
                 "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom"}
 
     def set_state(self, state):
+        self.fallbacks = int(state.get("fallbacks", self.fallbacks))
         if state.get("mode", "rom") == "full":
             super().set_state(state)
             self.mode = "full"

@@ -1,7 +1,7 @@
 r"""Offline training of a realtime (reduced) model from full-order snapshot runs.
 
 1. Snapshots: `runs` full-order transient runs of `duration` s (the scene's full model at
-   the realtime knobs: the balanced preset's mesh and tolerances), each under a random
+   the realtime knobs: coarse generic half face, loose tolerances), each under a random
    activation pattern of the scene's driven muscles (`random_schedules`: one to four
    muscles ramping 0 -> U(0.1, 1) over U(0.05, 0.1) s from U(0, 0.05) s, half of them
    relaxing again; otherwise one run in four co-activates five or more at U(0, 0.6)); the
