@@ -27,8 +27,11 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   contact nodes only (the generic, slower path; solver.rom.reduced does the same).
 
 The jaw (set_pose): the contact nodes sit at X + L + V q (L the lifting,
-solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to); a
-rigid adapter whose surface moved rebuilds its triangles' bounding spheres and its lists.
+solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to). A
+rigid adapter's lists stay valid while a slave's motion plus the largest motion of the
+surface's vertices since the lists were built is at most delta (the slave's distance to
+every triangle has changed by at most that sum); beyond it they are rebuilt on the
+moved surface.
 
 Each adapter adds V_b^T f_b (and V_b^T K_b V_b) of its active blocks (project_nodal) and
 reports its normal contact force (N) and its active set (for the tangent's refresh).
@@ -59,7 +62,8 @@ class _Rigid:
                                                        axis=2).max(axis=1))
         self.depth = float(term.search_radius)
         self.X0 = self.X
-        self.pose = self._geom_pose = np.zeros(2)
+        self.pose = np.zeros(2)
+        self.v_ref = None                  # the surface's vertices when the lists were built
         # the term's kernel arguments after `tri` (its free-edge fade and rim topology)
         self.extra = term.rim_args()
         self.ptr = np.zeros(s + 1, dtype=np.int64)
@@ -84,32 +88,38 @@ class _Rigid:
         self.X = np.ascontiguousarray(self.X0 + Ls) if np.any(Ls) else self.X0
 
     def _follow(self):
-        """Put the term's surface at self.pose (another caller may have moved it) and
-        rebuild the bounding spheres and lists where the geometry changed."""
+        """Put the term's surface at self.pose (another caller may have moved it); the
+        largest motion of its vertices since the lists were built (mm)."""
         t = self.term
-        if t.motion is None:
-            return
+        if t.motion is None or self.v_ref is None:
+            return 0.0
         if not np.array_equal(t.pose, self.pose):
             t.move_to(self.pose)
-        if not np.array_equal(self._geom_pose, self.pose):
+        return float(np.sqrt(((t.vertices - self.v_ref) ** 2).sum(axis=1).max()))
+
+    def _rebuild(self):
+        """The lists at the current slave positions x, on the surface where it is."""
+        t = self.term
+        if t.motion is not None:
             xv, tris = t.vertices, t.tris
             self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
             self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
                                                            axis=2).max(axis=1))
-            self._geom_pose = self.pose.copy()
-            self.reset()
+            self.v_ref = xv.copy()
+        short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta, self.depth,
+                    self.ptr, self.cand, self.dist)
+        self.x_ref = self.x.copy()
 
     def reset(self):
         self.x_ref = np.zeros((0, 3))                  # rebuild the lists at the next call
 
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
-        self._follow()
+        if t.motion is not None and not np.array_equal(t.pose, self.pose):
+            t.move_to(self.pose)
         move = slave_positions(q, self.X, self.Vs, self.x_ref, self.all, self.x, self.xs)
-        if not move <= self.delta:
-            short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta,
-                        self.depth, self.ptr, self.cand, self.dist)
-            self.x_ref = self.x.copy()
+        if not move + self._follow() <= self.delta:
+            self._rebuild()
         # the slaves' tangents too (cheap): tangent() projects them without a new call
         rigid_contact(self.xs, t.k, t.vertices, t.tris, self.ptr, self.cand,
                       *t.normals.args(), t.search_radius, t.smoothing, True, self.fe, self.ke,

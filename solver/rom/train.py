@@ -7,19 +7,24 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    relaxing again; otherwise one run in four co-activates five or more at U(0, 0.6)); the
    displacements are recorded every `interval` s. The first 2 x (driven muscles) runs
    each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
-   at U(0.1, 1). Where the face has a jaw, half of the runs move it as well
-   (random_jaw: the opening ramping to U(0, 20) deg, the protrusion, one run in three, to
-   U(-1, 10) mm: solver.face.jaw.JAW_RANGES), and `jaw_runs` more runs open it to
-   U(5, 20) deg with one or two muscles; the poses covered are the model's
-   "jaw_envelope". A run that takes longer than max_wall keeps the snapshots it has.
+   at U(0.1, 1). Where the face has a jaw, `jaw_runs` more runs move it (random_jaw:
+   the opening ramping to U(5, 20) deg, the protrusion, one run in three, to U(-1, 10)
+   mm: solver.face.jaw.JAW_RANGES) with one to three muscles at U(0.1, 1); the poses
+   covered are the model's "jaw_envelope". A run that takes longer than max_wall keeps
+   the snapshots it has.
    Runs are independent tasks: through a dask client (solver.sweep.Sweep,
    `snapshot_task`) or in this process.
-2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy.
+2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy,
+   in two stages where the jaw moves: V_1 of the muscle runs, then V_2 of what V_1 leaves
+   of the jaw runs (u - V_1 V_1^T u), to `energy` and `jaw_energy`; V = [V_1 V_2]. The jaw runs'
+   centimetres would otherwise take the energy criterion's modes from the lips'
+   millimetres (docs/dev-notes/realtime-balanced.md).
 3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
    basis, u = V V^T u_j + (u_j on the prescribed DOFs: the jaw's lifting), with their
    activations (tissue + stiffening per brick).
 4. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping).
-5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns;
+5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns
+   and the first jaw run;
    the threshold is `trust_factor` times the largest full-order residual rho met
    (solver.rom.simulation), at least `trust_floor`. The largest displacement and lip
    output differences to the full runs of those patterns are stored in meta.
@@ -162,20 +167,16 @@ def snapshot_task(task, scene, sim=None):
 
 
 def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_runs=0):
-    """The training runs' tasks (module docstring); jaw_runs > 0: the face has a jaw,
-    half of the runs move it, and jaw_runs more open it."""
+    """The training runs' tasks (module docstring): `runs` muscle patterns, then
+    `jaw_runs` that move the jaw as well."""
     rng = np.random.default_rng(seed)
     driven = list(scene.driven)
     order = list(rng.permutation(driven))
-    tasks = []
-    for i in range(runs):
-        sched = random_schedules(rng, driven, duration,
-                                 order[i % len(order)] if i < 2 * len(order) else None)
-        if jaw_runs and rng.random() < 0.5:
-            sched += random_jaw(rng, duration)
-        tasks.append({"label": f"pattern {i}", "schedules": sched})
+    tasks = [{"label": f"pattern {i}", "schedules": random_schedules(
+                 rng, driven, duration, order[i % len(order)] if i < 2 * len(order) else None)}
+             for i in range(runs)]
     for i in range(jaw_runs):
-        muscles = rng.choice(driven, rng.integers(1, 3), replace=False) if driven else []
+        muscles = rng.choice(driven, rng.integers(1, 4), replace=False) if driven else []
         sched = tuple(_ramp(rng, str(m), rng.uniform(0.1, 1.0), duration) for m in muscles)
         sched += random_jaw(rng, duration, (5.0, JAW_RANGES["jaw_opening"][1]))
         tasks.append({"label": f"jaw pattern {i}", "schedules": sched})
@@ -311,7 +312,7 @@ def reduced_matrices(sim, V):
 def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client=None,
           energy=1.0 - 1e-6, r_max=60, ecsw_tol=1e-2, ecsw_states=150, calibration_runs=3,
           trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
-          sim_only=False, budget=None, jaw_runs=8, provenance=None):
+          sim_only=False, budget=None, jaw_runs=12, provenance=None, jaw_energy=None):
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
     runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept).
@@ -336,7 +337,15 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     free = sim.face.model.system().free
     U = np.hstack([r["U"] for r in results])
     A = np.vstack([r["A"] for r in results])
-    Vf, sigma = pod_basis(U[free], energy, r_max=r_max)
+    jaw = np.concatenate([np.full(r["U"].shape[1], t["label"].startswith("jaw"))
+                          for t, r in zip(tasks, results)])
+    Vf, sigma = pod_basis(U[free][:, ~jaw], energy, r_max=r_max)
+    r1 = Vf.shape[1]
+    if jaw.any():                  # stage 2: what V_1 leaves of the jaw runs
+        rest = U[free][:, jaw]
+        rest = rest - Vf @ (Vf.T @ rest)
+        V2, _ = pod_basis(rest, jaw_energy or energy, r_max=r_max)
+        Vf, _ = np.linalg.qr(np.hstack([Vf, V2]))
     V = np.zeros((U.shape[0], Vf.shape[1]))
     V[free] = Vf
     t_pod = time.perf_counter()
@@ -347,21 +356,24 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
               "sigma": sigma, "trust_threshold": np.array([np.inf])}
     r = V.shape[1]
     meta = {"scene": scene.name, **(provenance or {}), "key": model_key(scene),
-            "basis_size": r, "runs_used": len(results),
-            "captured_energy": captured_energy(sigma, r), "snapshots": int(U.shape[1]),
+            "basis_size": r, "jaw_modes": r - r1, "runs_used": len(results),
+            "captured_energy": captured_energy(sigma, r1), "snapshots": int(U.shape[1]),
             "runs": runs, "jaw_runs": jaw_runs, "jaw_envelope": jaw_envelope(tasks),
             "duration": duration, "interval": interval, "seed": seed,
             "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
             "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
             "pod_s": t_pod - t_start - t_snap, "ecsw_s": t_ecsw - t_pod}
-    calib = calibrate(scene, (arrays, meta), tasks[:calibration_runs],
-                      results[:calibration_runs], sim)
+    pick = list(range(min(calibration_runs, len(tasks))))      # and a jaw run, if any
+    pick += [i for i, t in enumerate(tasks) if t["label"].startswith("jaw")][:1]
+    calib = calibrate(scene, (arrays, meta), [tasks[i] for i in pick],
+                      [results[i] for i in pick], sim)
     arrays["trust_threshold"] = np.array([max(trust_factor * calib["rho_max"], trust_floor)])
     meta.update(calib, trust_threshold=float(arrays["trust_threshold"][0]),
                 train_s=time.perf_counter() - t_start)
     path = save_model(out or model_path(scene), arrays, meta)
     if progress:
-        print(f"realtime model: {r} modes ({meta['captured_energy']:.8f} of the energy), "
+        print(f"realtime model: {r} modes ({r1} of the muscle runs: "
+              f"{meta['captured_energy']:.8f} of their energy; {r - r1} of the jaw runs), "
               f"{len(bricks)} of {meta['bricks_total']} bricks (ECSW residual {res:.2g}), "
               f"trust threshold {meta['trust_threshold']:.3g}; trained in "
               f"{meta['train_s']:.0f} s -> {path}", flush=True)
