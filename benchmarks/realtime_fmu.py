@@ -3,10 +3,11 @@ error against the full-order model on a lip gesture.
 
     python benchmarks/realtime_fmu.py [--fmu FILE.fmu] [--model FILE.npz] [--step 0.001]
                                       [--gesture oop_ris] [--repeat 5] [--no-full]
+                                      [--md FILE]
 
-1. The FMU: --fmu, or built here (build_fmu.py) with the model packed in (--model, default
-   the cached model of the built-in `speech` scene: all ten muscles, lip and teeth
-   contact; `python benchmarks/rom_train.py` trains it).
+1. The FMU: --fmu, or built here (build_fmu.py) with the model that ships for the
+   `speech` scene (solver/rom/models; all ten muscles, lip and teeth contact, the jaw),
+   or --model packed in.
 2. Co-simulation through fmpy in a fresh process (FMU2Slave, scene "speech", fidelity
    "realtime"): the gesture's activations set before every doStep of `--step` seconds
    (1 ms), outputs read after each. Timed: the stepping loop (setReal, doStep, getReal),
@@ -19,8 +20,10 @@ error against the full-order model on a lip gesture.
    largest difference in lip aperture and protrusion over its 5 ms records (--no-full
    leaves it out).
 
-The gesture (solver.rom.accuracy.GESTURES): oop_ris, 0.3 s, OOP 0 -> 1 and RIS 0 -> 0.5
-over 0-0.15 s, held. Prints the machine load (os.getloadavg) before and after.
+The gesture (solver.rom.accuracy.GESTURES, --gesture; jaw inputs go to the FMU's jaw):
+oop_ris, 0.3 s, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held. Prints the machine load
+(os.getloadavg) before and after; --md appends a markdown table row per call to FILE
+(written with a header when new) with the command and the commit.
 """
 
 import argparse
@@ -96,7 +99,7 @@ def load():
 
 def build_fmu(dest, model):
     cmd = [sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)]
-    cmd += ["--rom", str(model)] if model else ["--with-realtime"]
+    cmd += ["--rom", str(model)] if model else []
     run = subprocess.run(cmd, capture_output=True, text=True)
     if run.returncode:
         raise SystemExit(run.stderr.strip() or run.stdout.strip())
@@ -132,6 +135,7 @@ def main(argv=None):
     ap.add_argument("--gesture", default="oop_ris")
     ap.add_argument("--repeat", type=int, default=5, help="runs of each (FMU: fresh instances)")
     ap.add_argument("--no-full", action="store_true", help="skip the full-order reference")
+    ap.add_argument("--md", type=Path, help="append the figures as a markdown table row")
     args = ap.parse_args(argv)
     for var in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
@@ -175,6 +179,7 @@ def main(argv=None):
           f"{float(np.median(walls)) / duration:.2f}); mode {rom.mode}; FMU - in process: "
           f"aperture {d[0]:.2g} mm, protrusion {d[1]:.2g} mm")
 
+    ap = pr = rng_ap = rng_pr = float("nan")
     if not args.no_full:
         full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)      # the full model
         t0 = time.perf_counter()
@@ -190,6 +195,19 @@ def main(argv=None):
               f"{fwall:.1f} s wall): max error aperture {ap:.3f} mm (range {rng_ap:.2f} mm), "
               f"protrusion {pr:.3f} mm (range {rng_pr:.2f} mm)")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in load())}")
+    if args.md:
+        from solver.app.provenance import command, commit
+        new = not args.md.is_file()
+        with open(args.md, "a") as fh:
+            if new:
+                fh.write("| gesture | FMU real-time factor, best / median | in process, best "
+                         "| max error aperture / protrusion (mm) | range (mm) | command, "
+                         "commit |\n|---|---|---|---|---|---|\n")
+            fh.write(f"| {args.gesture} ({duration} s, {1e3 * args.step:g} ms steps) | "
+                     f"{best['wall_s'] / duration:.2f} / {med / duration:.2f} | "
+                     f"{min(walls) / duration:.2f} | {ap:.3f} / {pr:.3f} | {rng_ap:.2f} / "
+                     f"{rng_pr:.2f} | `{command('benchmarks/realtime_fmu.py')}`, "
+                     f"{commit()} |\n")
     return 0
 
 
