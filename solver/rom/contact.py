@@ -18,8 +18,8 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   triangle, hence the same gap and force, as the term (a slave with d_i - delta above the
   contact depth gets an empty list: out of contact either way). The lists are rebuilt
   (one brute-force numba pass over the triangles) when a slave has moved more than delta
-  (default 0.2 mm). Slaves are not skipped by distance: beyond a free edge the term's
-  penalty is not a function of the distance alone.
+  (0.5 mm in solver.rom.simulation). Slaves are not skipped by distance: beyond a free
+  edge the term's penalty is not a function of the distance alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
   refreshed by the term's own normals object; private copies of the pair work arrays.
@@ -28,10 +28,11 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
 
 The jaw (set_pose): the contact nodes sit at X + L + V q (L the lifting,
 solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to). A
-rigid adapter's lists stay valid while a slave's motion plus the largest motion of the
-surface's vertices since the lists were built is at most delta (the slave's distance to
-every triangle has changed by at most that sum); beyond it they are rebuilt on the
-moved surface.
+rigid adapter's lists stay valid while a slave's motion plus the surface's since the
+lists were built is at most delta (the slave's distance to every triangle has changed by
+at most that sum); the surface's motion between two poses is bounded by
+|d theta| R + |d p|, R the moving vertices' largest distance from the jaw's axis.
+Beyond it the lists are rebuilt on the moved surface.
 
 Each adapter adds V_b^T f_b (and V_b^T K_b V_b) of its active blocks (project_nodal) and
 reports its normal contact force (N) and its active set (for the tangent's refresh).
@@ -63,7 +64,13 @@ class _Rigid:
         self.depth = float(term.search_radius)
         self.X0 = self.X
         self.pose = np.zeros(2)
-        self.v_ref = None                  # the surface's vertices when the lists were built
+        self.pose_ref = None               # the surface's pose when the lists were built
+        if term.motion is not None:
+            # a bound of the moving vertices' motion between two poses: |d theta| R + |d p|,
+            # R their largest distance from the jaw's axis (solver.face.jaw: x along it)
+            jaw, moving = term.motion
+            r = term.rest_vertices[moving] - jaw.geometry.centre
+            self.R = float(np.sqrt((r[:, 1:] ** 2).sum(axis=1).max())) if moving.any() else 0.0
         # the term's kernel arguments after `tri` (its free-edge fade and rim topology)
         self.extra = term.rim_args()
         self.ptr = np.zeros(s + 1, dtype=np.int64)
@@ -88,14 +95,11 @@ class _Rigid:
         self.X = np.ascontiguousarray(self.X0 + Ls) if np.any(Ls) else self.X0
 
     def _follow(self):
-        """Put the term's surface at self.pose (another caller may have moved it); the
-        largest motion of its vertices since the lists were built (mm)."""
-        t = self.term
-        if t.motion is None or self.v_ref is None:
+        """A bound (mm) of the surface's vertices' motion since the lists were built."""
+        if self.pose_ref is None:
             return 0.0
-        if not np.array_equal(t.pose, self.pose):
-            t.move_to(self.pose)
-        return float(np.sqrt(((t.vertices - self.v_ref) ** 2).sum(axis=1).max()))
+        d = self.pose - self.pose_ref
+        return abs(d[0]) * (np.pi / 180.0) * self.R + abs(d[1])
 
     def _rebuild(self):
         """The lists at the current slave positions x, on the surface where it is."""
@@ -105,7 +109,7 @@ class _Rigid:
             self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
             self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
                                                            axis=2).max(axis=1))
-            self.v_ref = xv.copy()
+            self.pose_ref = self.pose.copy()
         short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta, self.depth,
                     self.ptr, self.cand, self.dist)
         self.x_ref = self.x.copy()

@@ -80,7 +80,7 @@ class ReducedSimulation(Simulation):
                  rom_model=None, rom_dirs=(), rom_train=False, trust="fallback",
                  check_every=100, h=1e-3, refresh=4, utol=1e-4, max_iter=20,
                  damping="current", damping_refresh=5, method="fast", rate=0.8,
-                 contact_delta=0.2, max_frozen=6, kb_every=50, warmup=True, **overrides):
+                 contact_delta=0.5, max_frozen=6, kb_every=50, warmup=True, **overrides):
         if damping not in ("rest", "current"):
             raise ParameterError(f"damping = {damping!r} is not 'rest' or 'current'")
         if trust not in TRUST_MODES:

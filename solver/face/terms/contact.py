@@ -548,10 +548,7 @@ class RigidContact(_Report, Term):
             v[moving] = jaw.geometry.transform(v[moving], pose)
         self.vertices = np.ascontiguousarray(v)
         self.normals.update(self.vertices)
-        corners = self.vertices[self.tris]
-        centroids = corners.mean(axis=1)
-        self._tree = cKDTree(centroids)
-        self._reach = np.linalg.norm(corners - centroids[:, None], axis=2).max()
+        self._tree = None                 # the candidate search's, rebuilt when needed
         self._cached = None
 
     def _stiffnesses(self):
@@ -595,6 +592,11 @@ class RigidContact(_Report, Term):
         """(ptr (s + 1,), triangles) lists, rebuilt when a slave moved more than margin."""
         if self._cached is None or \
                 np.linalg.norm(x - self._cached[0], axis=1).max(initial=0.0) > self.margin:
+            if self._tree is None:
+                corners = self.vertices[self.tris]
+                centroids = corners.mean(axis=1)
+                self._tree = cKDTree(centroids)
+                self._reach = np.linalg.norm(corners - centroids[:, None], axis=2).max()
             self._cached = (x.copy(), *_lists(self._tree, x, self.search_radius + self._reach
                                               + self.margin))
         return self._cached[1], self._cached[2]
