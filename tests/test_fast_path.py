@@ -422,7 +422,7 @@ def test_fast_path_refuses_a_knob_without_group_or_value_or_of_another_group(tmp
 def test_fast_path_tallies_a_tiny_run_with_its_knobs(tmp_path):
     """benchmarks/fast_path.py on 0.02 s of case b: the knobs typed (int, float, bool) and
     applied (transient.fixed_step 5 ms: two substeps per 10 ms record, summed over the two
-    records; newton.reuse false: a factorization per Newton iteration), a row with the
+    records; newton.reuse false: no factorization reused), a row with the
     penetration and the machine gauge before and after, the records saved."""
     run = _fast_path(tmp_path, "--only", "b", "--paths", "new", "--duration", "0.02",
                      "--set", "transient.fixed_step=0.005", "--set", "newton.reuse=false",
@@ -434,7 +434,9 @@ def test_fast_path_tallies_a_tiny_run_with_its_knobs(tmp_path):
     assert row["set"] == ("transient.fixed_step=0.005 newton.reuse=False newton.max_iter=30 "
                           "lips.smoothing=0.0")
     assert int(row["substeps"]) == 4 and row["failed"] == "-"
-    assert int(row["factorizations"]) == int(row["newton_its"]) >= 4
+    # no reuse: at least one factorization per Newton iteration (the count of Newton's
+    # iterations leaves out its extra solves, e.g. a direction made again)
+    assert int(row["factorizations"]) >= int(row["newton_its"]) >= 4
     assert float(row["penetration_mm"]) >= 0.0
     assert len([float(x) for x in row["probe_s"].split(" / ")]) == 2
     rec = json.loads((tmp_path / "records.json").read_text())
