@@ -5,8 +5,12 @@ model's own terms), on the session's tiny trained model (conftest.py `trained`).
 Every shortcut must leave the reduced solution where the reference puts it: the kernels
 give the same forces and tangents, the reduced contact the same as the terms' assemble(),
 the frozen-tangent Newton the same trajectory as full Newton (to its tolerance), the trust
-check the same residual, the outputs the same numbers, and a rolled-back step repeats.
+check the same residual, the outputs the same numbers, and a rolled-back step repeats;
+with the jaw (`trained_jaw`) the reduced model follows the full one while the jaw opens
+and hands over outside its training envelope.
 """
+
+import warnings
 
 import numpy as np
 import pytest
@@ -227,3 +231,46 @@ def test_a_rolled_back_jaw_step_repeats_exactly(trained_jaw):
     rom.set_state(state)
     assert rom.jaw == (0.3 * hi, 0.0)
     assert jaw_steps() == first
+
+
+def test_rom_follows_the_full_model_while_the_jaw_opens(trained_jaw):
+    m = trained_jaw
+    from solver.rom.train import drive
+    rom = open_simulation(m["scene"], fidelity="realtime", rom_model=m["path"],
+                          loaded_anatomy=m["full"].anatomy, trust="warn",
+                          check_every=10)
+    i = next(i for i, t in enumerate(m["tasks"]) if t["label"].startswith("jaw"))
+    task, res = m["tasks"][i], m["results"][i]
+    assert res["P"][:, 0].max() >= 5.0                     # the jaw opens by 5 deg or more
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                     # no trust warning on training
+        rows = drive(rom, task["schedules"], task["duration"], task["interval"])
+    for key in ("lip_aperture", "lip_protrusion"):
+        d = max(abs(a[key] - b[key]) for a, b in zip(rows, res["rows"]))
+        span = np.ptp([b[key] for b in res["rows"]])
+        assert d < 0.05 + 0.01 * span, (key, d, span)
+    # the jaw's pose is prescribed: the same incisor opening to rounding
+    assert max(abs(a["incisor_opening"] - b["incisor_opening"])
+               for a, b in zip(rows, res["rows"])) < 1e-9
+    assert rows[-1]["incisor_opening"] > 5.0
+    assert np.abs(rom.u.ravel() - res["U"][:, -1]).max() < 0.1 + 0.01 * np.abs(res["U"]).max()
+    assert rom.mode == "rom" and rom.jaw == tuple(res["P"][-1])
+
+
+def test_a_jaw_pose_outside_the_training_envelope_falls_back_with_a_warning(trained_jaw):
+    m = trained_jaw
+    from solver.face.jaw import JAW_INPUTS, JAW_RANGES
+    from solver.rom.simulation import TrustWarning
+    rom = open_simulation(m["scene"], fidelity="realtime", rom_model=m["path"],
+                          loaded_anatomy=m["full"].anatomy)
+    env = m["meta"]["jaw_envelope"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                     # inside: no warning
+        rom.set_jaw(opening=0.5 * sum(env["jaw_opening"]))
+    assert rom.mode == "rom"
+    name, value = next((n, JAW_RANGES[n][1]) for n in JAW_INPUTS
+                       if env[n][1] < JAW_RANGES[n][1])
+    with pytest.warns(TrustWarning, match=f"{name} = {value:g} .* outside its training"):
+        rom.set_jaw(**{name[4:]: value})
+    assert rom.mode == "full"
+    assert rom.step(0.002).converged and rom.jaw[JAW_INPUTS.index(name)] == value

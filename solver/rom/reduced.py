@@ -83,14 +83,21 @@ class ReducedOperator:
     def set_pose(self, pose_n, pose, lam=1.0):
         """The jaw's pose (2,) at the start (pose_n) and the end (pose) of the coming
         substep, at load factor lam of the caller's step: the lifting L, le (k, 24) of the
-        cubature's bricks and the cables' d0 at pose; L_n and le_n at pose_n."""
-        self.pose = np.array(pose, dtype=np.float64)
+        cubature's bricks and the cables' d0 at pose; L_n and le_n at pose_n. Returns
+        whether either pose differs from the last call's."""
+        key = (np.asarray(pose_n, dtype=np.float64).tobytes(),
+               np.asarray(pose, dtype=np.float64).tobytes())
         self.lam = float(lam)
+        if key == getattr(self, "_pose_key", None):
+            return False
+        self._pose_key = key
+        self.pose = np.array(pose, dtype=np.float64)
         self.L_n, self.le_n, _ = self.lifting.at(pose_n)
         self.L, self.le, d0 = self.lifting.at(pose)
         if d0 is not None:
             self.d0 = d0
         self.moving = bool(np.any(self.le != self.le_n))
+        return True
 
     # -- setup ---------------------------------------------------------------------------
     def _stiffening_setup(self, face):

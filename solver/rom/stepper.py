@@ -124,10 +124,9 @@ class Stepper:
         while i < len(pieces):
             lam = pieces[i]
             h = (lam - lam_prev) * span
-            if jaw is not None:
-                self.op.set_pose(jaw.at(lam_prev), jaw.at(lam), lam)
-                if self.online is not None:
-                    self.online.set_pose()
+            if jaw is not None and self.op.set_pose(jaw.at(lam_prev), jaw.at(lam), lam) \
+                    and self.online is not None:
+                self.online.set_pose()
             self._damping(q)
             q_new, its, why = newton(q, v, h, act.at(lam), t0 + lam * span)
             stats.newton_iterations += its
