@@ -36,6 +36,8 @@ step, duration = float(step), float(duration)
 n = int(round(duration / step))
 rows = []
 if mode == "inprocess":
+    from solver import configure_numba
+    configure_numba()                      # the FMU's numba settings
     from solver.entry import open_simulation
     from solver.app.simulation import resolve_scene
     scene = resolve_scene(scene_name)

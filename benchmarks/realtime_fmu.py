@@ -140,6 +140,8 @@ def main(argv=None):
     for var in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     import numpy as np
+    from solver import configure_numba
+    configure_numba()                      # the FMU's numba settings, in process too
     from solver.rom.accuracy import GESTURES
     from solver.rom.train import drive
     from solver.entry import open_simulation

@@ -43,6 +43,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from solver.core.numba_config import configure_numba  # noqa: E402
+
+configure_numba()                          # the FMU's numba settings, in process too
 from solver.validation import stability as S  # noqa: E402
 from solver.app.scene import parse_scene  # noqa: E402
 from solver.app.provenance import commit  # noqa: E402

@@ -15,7 +15,11 @@ entry of COMMANDS: name -> (help, add_arguments(parser), run(args) -> exit statu
 import argparse
 import sys
 
-from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.core.numba_config import configure_numba
+
+configure_numba()              # before numba's import (solver.core.numba_config)
+
+from solver.face.anatomy.base import MUSCLE_NAMES  # noqa: E402
 from solver.face.anatomy.load import LEVELS, load_anatomy
 from solver.core.errors import FaceFMUError
 from solver.app.extras import MissingExtra

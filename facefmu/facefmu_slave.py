@@ -37,7 +37,11 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Intege
 from pythonfmu.enums import Fmi2Status
 from pythonfmu.default_experiment import DefaultExperiment
 
-from solver.face.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES
+from solver.core.numba_config import configure_numba
+
+configure_numba()              # before any kernel runs in this process (solver.core.numba_config)
+
+from solver.face.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES  # noqa: E402
 from solver.app.fidelity import FIDELITIES, REDUCED, fidelity_overrides
 from solver.face.jaw import JAW_INPUTS, JAW_RANGES, JAW_UNITS
 from facefmu.model_description import extend_model_description

@@ -9,6 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from solver.core.numba_config import configure_numba
+
+configure_numba()                          # as the FMU slave and the CLI do
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = Path(__file__).parent / "fmu_scripts"
 

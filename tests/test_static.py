@@ -221,3 +221,20 @@ def test_relaxation_without_an_equilibrium_fails_and_leaves_the_state_unchanged(
     rel = relax(model, t_max=0.3)
     assert not rel.converged and "no static equilibrium" in rel.reason
     assert np.array_equal(model.u, before) and model.terms == terms
+
+
+def test_a_model_with_every_node_prescribed_solves_to_its_targets_or_refuses_inversion():
+    """No free DOF: the state is the targets, the residual the reactions (no linear solve);
+    a prescription that inverts the brick is refused with the state kept."""
+    X = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)
+    m = solver.Model(solver.Mesh(X, np.array([[0, 1, 3, 2, 4, 5, 7, 6]])),
+                     solver.MooneyRivlin(c10=2.5e-3, d=0.8))
+    m.fix([0, 1, 2, 3])
+    m.prescribe([4, 5, 6, 7], displacement=(0, 0, 0.1))
+    res = m.solve_static()
+    assert res.converged and res.iterations == 0
+    np.testing.assert_array_equal(m.u[4:], [[0, 0, 0.1]] * 4)
+    m.prescribe([4, 5, 6, 7], displacement=(0, 0, -1.5))     # through the bottom face
+    res = m.solve_static()
+    assert not res.converged and "det F" in res.reason
+    np.testing.assert_array_equal(m.u[4:], [[0, 0, 0.1]] * 4)

@@ -8,6 +8,10 @@ content of every solver file that defines numba functions (numba's own stamp is 
 kernel's file alone): a kernel calls jitted helpers of other files, compiled into it, and
 an edit of a helper must recompile its callers too.
 
+Only the solver's own kernels are filed this way: nothing here changes numba's process-wide
+configuration (its cache directory, threading layer and vector library stay the process's;
+solver.core.numba_config.configure_numba is the explicit call that sets those).
+
 Order: $NUMBA_CACHE_DIR if set, else $FACEFMU_CACHE_DIR/numba, else
 $XDG_CACHE_HOME/facefmu/numba, else ~/.cache/facefmu/numba. A directory that cannot be
 written (read-only, a path through a file, no home) falls back, with a RuntimeWarning, to
@@ -24,12 +28,6 @@ import stat
 import tempfile
 import warnings
 from pathlib import Path
-
-# Before numba is imported: numba uses Intel's SVML for vectorized math calls when it
-# finds the library (MKL's dependencies bring one), so the kernels' rounding would depend
-# on what the process has loaded; without it they are the same everywhere.
-os.environ.setdefault("NUMBA_DISABLE_INTEL_SVML", "1")
-
 
 def user_cache_dir() -> Path:
     """The FaceFMU cache root (numba kernels, trained reduced models)."""
@@ -89,9 +87,10 @@ def _disable_solver_caching():
     Dispatcher.enable_caching = enable_caching
 
 
-def configure_numba_cache():
-    """Point numba's cache at the user cache directory (or a fallback, see the module
-    docstring); call before compiling kernels. The directory used, or None (no cache)."""
+def solver_cache_dir():
+    """The directory for the solver's compiled kernels: the user cache directory or a
+    fallback (module docstring); None when nothing can be written (then the solver's kernels
+    are not cached)."""
     try:
         wanted = Path(os.environ.get("NUMBA_CACHE_DIR") or user_cache_dir() / "numba")
         what = f"numba cache directory {wanted} is not writable"
@@ -107,9 +106,6 @@ def configure_numba_cache():
         warnings.warn(f"{what}; compiled kernels go to {fallback}", RuntimeWarning,
                       stacklevel=2)
         wanted = fallback
-    os.environ["NUMBA_CACHE_DIR"] = str(wanted)
-    import numba.core.config as config
-    config.CACHE_DIR = str(wanted)
     return wanted
 
 
@@ -123,11 +119,13 @@ _KERNEL_STAMP = {}
 
 def kernel_sources_stamp(root=None):
     """sha256 (hex) of the content of every .py file under root (default: the solver
-    package) that defines numba functions (an @njit decorator), in path order;
-    computed once per root and process."""
+    package) that defines numba functions (an @njit decorator), in path order, and of
+    whether numba vectorizes with Intel's SVML (other rounding); computed once per root and
+    process."""
     root = Path(root or Path(__file__).resolve().parents[1])
     if root not in _KERNEL_STAMP:
-        digest = hashlib.sha256()
+        import numba.core.config as config
+        digest = hashlib.sha256(b"svml" if getattr(config, "USING_SVML", False) else b"")
         for path in sorted(root.rglob("*.py")):
             data = path.read_bytes()
             if b"@njit" in data:
@@ -143,9 +141,9 @@ def _install_stable_locator():
         """Kernels of the `solver` package, filed by module name under the cache dir."""
 
         def __init__(self, py_func, py_file):
-            super().__init__(py_func, py_file)
-            import numba.core.config as config
-            self._cache_path = os.path.join(config.CACHE_DIR, "facefmu",
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            self._cache_path = os.path.join(str(CACHE_DIR), "facefmu",
                                             py_func.__module__.rpartition(".")[0])
 
         def get_source_stamp(self):
@@ -153,24 +151,15 @@ def _install_stable_locator():
 
         @classmethod
         def from_function(cls, py_func, py_file):
-            if not getattr(py_func, "__module__", "").startswith("solver."):
+            if CACHE_DIR is None or not getattr(py_func, "__module__", "").startswith("solver."):
                 return None
-            return super().from_function(py_func, py_file)
+            locator = cls(py_func, py_file)
+            locator.ensure_cache_path()
+            return locator
 
     if not any(c.__name__ == "StableLocator" for c in _impl(caching)._locator_classes):
         _impl(caching)._locator_classes.insert(0, StableLocator)
 
 
-def configure_threading_layer():
-    """numba's 'workqueue' threading layer unless the user chose one: the TBB and OpenMP
-    layers load a second threading runtime beside MKL's (PARDISO) and the process then
-    aborts at exit ("corrupted double-linked list", seen through fmpy). Our kernels hold
-    the GIL, so workqueue's lack of thread safety never bites; assembly is as fast."""
-    if not os.environ.get("NUMBA_THREADING_LAYER"):
-        import numba.core.config as config
-        config.THREADING_LAYER = "workqueue"
-
-
-configure_threading_layer()
-CACHE_DIR = configure_numba_cache()
+CACHE_DIR = solver_cache_dir()
 _install_stable_locator()

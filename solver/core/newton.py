@@ -429,6 +429,15 @@ def _newton(system, u0, targets, lin, opts, tag):
     u = u0.copy()
     prescribed = system.prescribed
     report = NewtonReport(False, 0)
+    if len(system.free) == 0:               # every DOF prescribed: nothing to solve
+        u[prescribed] = targets
+        r, reason = _evaluate(system, u, False)
+        if r is None or not np.all(np.isfinite(r)):
+            report.reason = reason if r is None else "residual is not finite"
+            return None, None, report
+        report.converged = True
+        report.residuals.append(0.0)
+        return u, r, report
     contact = ContactUpdate(system) if opts.contact_update else None
     krylov = KrylovDirection.of(system) if opts.krylov and opts.reuse else None
     krylov = krylov if krylov else None            # no contact terms: plain reuse

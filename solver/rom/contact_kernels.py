@@ -8,6 +8,8 @@ changes (numba's cache checks only the caller's own file), so nothing here calls
 import numpy as np
 from numba import njit
 
+from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+
 
 @njit(cache=True)
 def slave_positions(q, X, Vs, x_ref, sel, x, xs):

@@ -16,6 +16,8 @@ and, for mean dilatation, + U''(1) / V dv dv^T with dv = sum_g w det F dN/dx.
 import numpy as np
 from numba import njit
 
+from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+
 _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf checks stay
 
 

@@ -28,6 +28,8 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
 import numpy as np
 from numba import njit
 
+from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+
 _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf checks stay
 
 

@@ -10,6 +10,8 @@ two), the protrusions and the width as lip_outputs does.
 import numpy as np
 from numba import njit
 
+from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+
 
 @njit(cache=True)
 def _seg_dist(a0, a1, q0, q1):
