@@ -109,7 +109,7 @@ def test_small_strain_stiffness_is_the_tangent_at_zero_strain(form, shape, rng):
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("case", FS)
 def test_residual_and_tangent_kernels_match_the_reference_kernel(form, shape, case, rng):
-    """The residual's pass (P written in F, solver.core.kernels.brick_residual) and the
+    """The residual's pass (S in the invariants, solver.core.kernels.brick_residual) and the
     assembly's (node-pair contractions, solver.core.kernels.brick_tangent) against
     solver.core.kernels.brick (whose tangent the finite-difference tests above check), with
     all five Mooney-Rivlin terms switched on (c01, c11, c02 are zero in the face's law, so

@@ -5,15 +5,11 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
 * ``brick_forces_r``: the cubature's reduced internal force only (no tangent),
   f_r = sum_e w_e V_e^T (f_e(u_e) + s_e f^s_e(u_e)), u_e = V_e q + le_e (le: the lifting,
   the prescribed displacements of the jaw, solver.rom.lifting), the same quantity as
-  solver.rom.kernels.reduced_bricks(need_k=False), written for speed:
-  - the tissue and the stiffening brick share F at each Gauss point; both energies are
-    Mooney-Rivlin isochoric energies linear in (c10, c01, c20, c11, c02), so their
-    stresses add into one: S = S_iso(p + s_e p^s) (+ S_vol of the tissue, for the
-    'full' formulation; the stiffening has d = inf: no volumetric part). Exact;
-  - first Piola-Kirchhoff P = F S, so f_ai = sum_g w_g sum_J P_iJ dN_a/dX_J (no B matrix);
-  - S = 2 (W_1 1 + W_2 (I1 1 - C) + W_3 adj C) with adj C = I3 C^-1 (solver.core.kernels.
-    invariants' chain rule, first derivatives only);
-  - mean dilatation: dv/dx_ai = sum_g w_g (dN_a/dX adj F)_i, f += U'(v / V) dv/dx.
+  solver.rom.kernels.reduced_bricks(need_k=False). The tissue and the stiffening brick
+  share F at each Gauss point; both energies are Mooney-Rivlin isochoric energies linear
+  in (c10, c01, c20, c11, c02), so their forces are one law's with the coefficients added
+  (the stiffening has no volumetric part): the core's element force,
+  solver.core.kernels.brick_residual.element_residual (inlined into these kernels).
 * ``cable_forces_r``: every cable, reduced: x_q - x_p = d0_c + D_c q,
   f_r = sum_c T_c D_c^T n_c, and optionally K_r = sum_c D_c^T (AE/L0 n n^T
   + T/l (1 - n n^T)) D_c (solver.core.kernels.cable's law, projected).
@@ -28,125 +24,21 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
 import numpy as np
 from numba import njit
 
-from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+from solver.core.kernels.brick_residual import element_residual
 
 _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf checks stay
 
 
-@njit(cache=True, fastmath=_FM)
-def _brick_force(ue, dndX, wgp, m10, m01, m20, m11, m02, d, form, fe, dv):
-    """fe (24,) = the brick's internal force at its displacements ue (24,) for the
-    Mooney-Rivlin coefficients (m10, m01, m20, m11, m02) and d (module docstring); dv (24,)
-    work. Returns the smallest det F (<= 0 or NaN: inverted, fe partial)."""
-    for c in range(24):
-        fe[c] = 0.0
-        dv[c] = 0.0
-    jmin = np.inf
-    v = 0.0
-    V = 0.0
-    for g in range(8):
-        G = dndX[g]
-        wg = wgp[g]
-        f00 = 1.0
-        f01 = 0.0
-        f02 = 0.0
-        f10 = 0.0
-        f11 = 1.0
-        f12 = 0.0
-        f20 = 0.0
-        f21 = 0.0
-        f22 = 1.0
-        for a in range(8):
-            g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
-            u0, u1, u2 = ue[3 * a], ue[3 * a + 1], ue[3 * a + 2]
-            f00 += u0 * g0
-            f01 += u0 * g1
-            f02 += u0 * g2
-            f10 += u1 * g0
-            f11 += u1 * g1
-            f12 += u1 * g2
-            f20 += u2 * g0
-            f21 += u2 * g1
-            f22 += u2 * g2
-        # adj F (det F F^-1)
-        a00 = f11 * f22 - f12 * f21
-        a01 = f02 * f21 - f01 * f22
-        a02 = f01 * f12 - f02 * f11
-        a10 = f12 * f20 - f10 * f22
-        a11 = f00 * f22 - f02 * f20
-        a12 = f02 * f10 - f00 * f12
-        a20 = f10 * f21 - f11 * f20
-        a21 = f01 * f20 - f00 * f21
-        a22 = f00 * f11 - f01 * f10
-        det = f00 * a00 + f01 * a10 + f02 * a20
-        if not det > 0.0:
-            return det                             # <= 0 or NaN
-        if det < jmin:
-            jmin = det
-        # C = F^T F (symmetric)
-        c00 = f00 * f00 + f10 * f10 + f20 * f20
-        c11 = f01 * f01 + f11 * f11 + f21 * f21
-        c22 = f02 * f02 + f12 * f12 + f22 * f22
-        c0_1 = f00 * f01 + f10 * f11 + f20 * f21
-        c1_2 = f01 * f02 + f11 * f12 + f21 * f22
-        c0_2 = f00 * f02 + f10 * f12 + f20 * f22
-        I1 = c00 + c11 + c22
-        I2 = 0.5 * (I1 * I1 - (c00 * c00 + c11 * c11 + c22 * c22
-                               + 2.0 * (c0_1 * c0_1 + c1_2 * c1_2 + c0_2 * c0_2)))
-        I3 = det * det
-        t13 = 1.0 / np.cbrt(I3)
-        t23 = t13 * t13
-        ab = I1 * t13 - 3.0
-        bb = I2 * t23 - 3.0
-        wb0 = m10 + 2.0 * m20 * ab + m11 * bb
-        wb1 = m01 + m11 * ab + 2.0 * m02 * bb
-        wb2 = 0.0
-        if form == 1:
-            wb2 = 2.0 * (det - 1.0) / d
-        w1 = wb0 * t13
-        w2 = wb1 * t23
-        w3 = (-wb0 * I1 * t13 / (3.0 * I3) - 2.0 * wb1 * I2 * t23 / (3.0 * I3)
-              + 0.5 * wb2 / det)
-        # adj C = I3 C^-1
-        d00 = c11 * c22 - c1_2 * c1_2
-        d11 = c00 * c22 - c0_2 * c0_2
-        d22 = c00 * c11 - c0_1 * c0_1
-        d01 = c0_2 * c1_2 - c0_1 * c22
-        d12 = c0_1 * c0_2 - c00 * c1_2
-        d02 = c0_1 * c1_2 - c11 * c0_2
-        dg = w1 + w2 * I1
-        s00 = 2.0 * (dg - w2 * c00 + w3 * d00)
-        s11 = 2.0 * (dg - w2 * c11 + w3 * d11)
-        s22 = 2.0 * (dg - w2 * c22 + w3 * d22)
-        s01 = 2.0 * (-w2 * c0_1 + w3 * d01)
-        s12 = 2.0 * (-w2 * c1_2 + w3 * d12)
-        s02 = 2.0 * (-w2 * c0_2 + w3 * d02)
-        # P = F S, times the Gauss weight
-        p00 = wg * (f00 * s00 + f01 * s01 + f02 * s02)
-        p01 = wg * (f00 * s01 + f01 * s11 + f02 * s12)
-        p02 = wg * (f00 * s02 + f01 * s12 + f02 * s22)
-        p10 = wg * (f10 * s00 + f11 * s01 + f12 * s02)
-        p11 = wg * (f10 * s01 + f11 * s11 + f12 * s12)
-        p12 = wg * (f10 * s02 + f11 * s12 + f12 * s22)
-        p20 = wg * (f20 * s00 + f21 * s01 + f22 * s02)
-        p21 = wg * (f20 * s01 + f21 * s11 + f22 * s12)
-        p22 = wg * (f20 * s02 + f21 * s12 + f22 * s22)
-        for a in range(8):
-            g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
-            fe[3 * a] += p00 * g0 + p01 * g1 + p02 * g2
-            fe[3 * a + 1] += p10 * g0 + p11 * g1 + p12 * g2
-            fe[3 * a + 2] += p20 * g0 + p21 * g1 + p22 * g2
-            if form == 0:
-                dv[3 * a] += wg * (g0 * a00 + g1 * a10 + g2 * a20)
-                dv[3 * a + 1] += wg * (g0 * a01 + g1 * a11 + g2 * a21)
-                dv[3 * a + 2] += wg * (g0 * a02 + g1 * a12 + g2 * a22)
-        v += wg * det
-        V += wg
-    if form == 0:
-        dU = 2.0 * (v / V - 1.0) / d
-        for c in range(24):
-            fe[c] += dU * dv[c]
-    return jmin
+@njit(cache=True)
+def _combined(p, ps, s, out):
+    """out (6,) = the Mooney-Rivlin coefficients of tissue p (6,) and stiffening ps (6,)
+    at factor s - 1 (clipped at 0) in one: both energies are linear in (c10 ... c02), so
+    their stresses add; d (out[5]) is the tissue's (the stiffening has no volumetric
+    part)."""
+    se = s if s > 0.0 else 0.0
+    for c in range(5):
+        out[c] = p[c] + se * ps[c]
+    out[5] = p[5]
 
 
 @njit(cache=True, fastmath=_FM)
@@ -166,6 +58,7 @@ def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, 
     due = np.empty(24)
     fe = np.empty(24)
     dv = np.empty(24)
+    pe = np.empty(6)
     eps = np.empty(6)
     sg = np.empty(6)
     damp = bd != 0.0
@@ -178,15 +71,8 @@ def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, 
             acc += le[e, c]
             ue[c] = acc
             due[c] = acc - ue_n[e, c]
-        pe = params[e]
-        se = s[e] if s[e] > 0.0 else 0.0
-        m10 = pe[0] + se * sparams[e, 0]
-        m01 = pe[1] + se * sparams[e, 1]
-        m20 = pe[2] + se * sparams[e, 2]
-        m11 = pe[3] + se * sparams[e, 3]
-        m02 = pe[4] + se * sparams[e, 4]
-        d = pe[5]
-        jm = _brick_force(ue, dndX[e], wgp[e], m10, m01, m20, m11, m02, d, form, fe, dv)
+        _combined(params[e], sparams[e], s[e], pe)
+        _, jm = element_residual(ue, dndX[e], wgp[e], pe, form, fe, dv)
         if not jm > 0.0:
             return jm
         if jm < jmin:
@@ -208,17 +94,14 @@ def brick_forces_full(u, bricks, dndX, wgp, params, sparams, s, form, out):
     ue = np.empty(24)
     fe = np.empty(24)
     dv = np.empty(24)
+    pe = np.empty(6)
     jmin = np.inf
     for e in range(bricks.shape[0]):
         for a in range(8):
             for i in range(3):
                 ue[3 * a + i] = u[bricks[e, a], i]
-        pe = params[e]
-        se = s[e] if s[e] > 0.0 else 0.0
-        jm = _brick_force(ue, dndX[e], wgp[e], pe[0] + se * sparams[e, 0],
-                          pe[1] + se * sparams[e, 1], pe[2] + se * sparams[e, 2],
-                          pe[3] + se * sparams[e, 3], pe[4] + se * sparams[e, 4], pe[5],
-                          form, fe, dv)
+        _combined(params[e], sparams[e], s[e], pe)
+        _, jm = element_residual(ue, dndX[e], wgp[e], pe, form, fe, dv)
         if not jm > 0.0:
             return jm
         if jm < jmin:

@@ -1,21 +1,22 @@
 r"""Internal force of the hyperelastic bricks without the tangent: the residual's pass.
 
-The same forces and energy as solver.core.kernels.brick (tested against it to rounding), by
-the first Piola-Kirchhoff stress written in F directly. With the isochoric invariants
-I1b = J^(-2/3) I1, I2b = J^(-4/3) I2 and the law's derivatives Wb1 = dW/dI1b,
-Wb2 = dW/dI2b (solver.core.kernels.invariants' chain rule, first derivatives only; C = F^T F,
-F C^-1 = F^-T),
+The same forces and energy as solver.core.kernels.brick (tested against it to rounding),
+from the second Piola-Kirchhoff stress in the principal invariants (I1, I2, I3) of
+C = F^T F (solver.core.kernels.invariants' chain rule, first derivatives only): with the
+isochoric invariants I1b = I3^(-1/3) I1, I2b = I3^(-2/3) I2 and the law's derivatives
+Wb1 = dW/dI1b, Wb2 = dW/dI2b,
 
-    P_iso = 2 (Wb1 J^(-2/3) + Wb2 J^(-4/3) I1) F - 2 Wb2 J^(-4/3) F C
-            - 2/3 (Wb1 I1b + 2 Wb2 I2b) F^-T,
+    W_1 = Wb1 I3^(-1/3),   W_2 = Wb2 I3^(-2/3),
+    W_3 = -(Wb1 I1b + 2 Wb2 I2b) / (3 I3) (+ U'(J) / (2 J) for ``full``),
+    S = 2 (W_1 1 + W_2 (I1 1 - C) + W_3 adj C),   adj C = I3 C^-1,
+    P = F S,   f_ai = sum_g w_g P_g,iJ dN_a/dX_J (g)  (no B matrix).
 
-and the volumetric part U'(J) J F^-T at each Gauss point (``full``) or, with mean
-dilatation, U'(theta) dv/dx = U'(theta) sum_g w_g J_g F_g^-T dN/dX_g, added after the
-loop once theta = v / V is known. f_ai = sum_g w_g P_g,iJ dN_a/dX_J (g).
-
-What it saves against the tangent's kernel per Gauss point: the second derivatives, the
-inverse of C, a second power J^(-2/3), the B-free spatial gradients (the mean dilatation's
-dv/dx is folded into the same contraction as the stress).
+With mean dilatation the volumetric part is U'(theta) dv/dx after the Gauss loop,
+theta = v / V, dv/dx_ai = sum_g w_g (dN_a/dX adj F)_i. Everything per Gauss point is
+written in scalars (no small arrays). The reduced model's online kernels
+(solver.rom.online_kernels) call the same element function; it is inlined into each
+caller at numba's level (inline="always"), so that their fast-math flags apply to it (a
+call across numba modules is not inlined by LLVM).
 
 Shapes as solver.core.kernels.brick: u (n, 3), bricks (m, 8), dndX (m, 8, 8, 3), wgp (m, 8),
 params (m, 6); fe (m, 24), energy (m,), jmin (m,).
@@ -24,79 +25,127 @@ params (m, 6); fe (m, 24), energy (m,), jmin (m,).
 import numpy as np
 from numba import njit, prange
 
-from solver.core.kernels.invariants import deformation_gradient, inverse3
 from solver.core.kernels.mooney_rivlin import vol_energy
 
 
-@njit(cache=True)
-def _element_residual(ue, dndX, wgp, p, form, fe, Q):
-    """Energy and min det F of one brick; fills fe (24,). Q (8, 3, 3) is scratch: each
-    Gauss point's w P (plus, with mean dilatation, w J F^-T until U'(theta) is known)."""
-    F = np.empty((3, 3))
-    Fi = np.empty((3, 3))
-    M = np.empty((8, 3, 3))
+@njit(cache=True, inline="always")
+def element_residual(ue, dndX, wgp, p, form, fe, dv):
+    """(energy, smallest det F) of one brick at its displacements ue (24,: node-major
+    x, y, z) for the law's row p (6,) (form 0: mean dilatation, 1: full); fills fe (24,)
+    with its internal force; dv (24,) is scratch. A det F <= 0 or NaN returns
+    (inf, det F) at once, fe partial."""
+    for c in range(24):
+        fe[c] = 0.0
+        dv[c] = 0.0
     c10, c01, c20, c11, c02 = p[0], p[1], p[2], p[3], p[4]
     energy = 0.0
+    jmin = np.inf
     v = 0.0
     V = 0.0
-    jmin = np.inf
     for g in range(8):
-        w = wgp[g]
         G = dndX[g]
-        deformation_gradient(ue, G, F)
-        J = inverse3(F, Fi)
-        jmin = min(jmin, J)
-        if J <= 0.0:
-            return np.inf, J
-        c00 = F[0, 0] ** 2 + F[1, 0] ** 2 + F[2, 0] ** 2
-        c11_ = F[0, 1] ** 2 + F[1, 1] ** 2 + F[2, 1] ** 2
-        c22 = F[0, 2] ** 2 + F[1, 2] ** 2 + F[2, 2] ** 2
-        c01_ = F[0, 0] * F[0, 1] + F[1, 0] * F[1, 1] + F[2, 0] * F[2, 1]
-        c12 = F[0, 1] * F[0, 2] + F[1, 1] * F[1, 2] + F[2, 1] * F[2, 2]
-        c02_ = F[0, 0] * F[0, 2] + F[1, 0] * F[1, 2] + F[2, 0] * F[2, 2]
-        I1 = c00 + c11_ + c22
-        I2 = 0.5 * (I1 * I1 - (c00 * c00 + c11_ * c11_ + c22 * c22
-                               + 2.0 * (c01_ * c01_ + c12 * c12 + c02_ * c02_)))
-        t13 = 1.0 / np.cbrt(J * J)                    # J^(-2/3)
+        wg = wgp[g]
+        f00 = 1.0
+        f01 = 0.0
+        f02 = 0.0
+        f10 = 0.0
+        f11 = 1.0
+        f12 = 0.0
+        f20 = 0.0
+        f21 = 0.0
+        f22 = 1.0
+        for a in range(8):
+            g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
+            u0, u1, u2 = ue[3 * a], ue[3 * a + 1], ue[3 * a + 2]
+            f00 += u0 * g0
+            f01 += u0 * g1
+            f02 += u0 * g2
+            f10 += u1 * g0
+            f11 += u1 * g1
+            f12 += u1 * g2
+            f20 += u2 * g0
+            f21 += u2 * g1
+            f22 += u2 * g2
+        # adj F = det F F^-1
+        a00 = f11 * f22 - f12 * f21
+        a01 = f02 * f21 - f01 * f22
+        a02 = f01 * f12 - f02 * f11
+        a10 = f12 * f20 - f10 * f22
+        a11 = f00 * f22 - f02 * f20
+        a12 = f02 * f10 - f00 * f12
+        a20 = f10 * f21 - f11 * f20
+        a21 = f01 * f20 - f00 * f21
+        a22 = f00 * f11 - f01 * f10
+        det = f00 * a00 + f01 * a10 + f02 * a20
+        if not det > 0.0:
+            return np.inf, det                     # <= 0 or NaN
+        if det < jmin:
+            jmin = det
+        # C = F^T F (symmetric)
+        c00 = f00 * f00 + f10 * f10 + f20 * f20
+        cc11 = f01 * f01 + f11 * f11 + f21 * f21
+        c22 = f02 * f02 + f12 * f12 + f22 * f22
+        c0_1 = f00 * f01 + f10 * f11 + f20 * f21
+        c1_2 = f01 * f02 + f11 * f12 + f21 * f22
+        c0_2 = f00 * f02 + f10 * f12 + f20 * f22
+        I1 = c00 + cc11 + c22
+        I2 = 0.5 * (I1 * I1 - (c00 * c00 + cc11 * cc11 + c22 * c22
+                               + 2.0 * (c0_1 * c0_1 + c1_2 * c1_2 + c0_2 * c0_2)))
+        I3 = det * det
+        t13 = 1.0 / np.cbrt(I3)                    # I3^(-1/3) = J^(-2/3)
         t23 = t13 * t13
-        a1 = I1 * t13 - 3.0
-        a2 = I2 * t23 - 3.0
-        wb1 = c10 + 2.0 * c20 * a1 + c11 * a2
-        wb2 = c01 + c11 * a1 + 2.0 * c02 * a2
-        energy += w * (c10 * a1 + c01 * a2 + c20 * a1 * a1 + c11 * a1 * a2 + c02 * a2 * a2)
-        kf = 2.0 * (wb1 * t13 + wb2 * t23 * I1)
-        ki = -2.0 / 3.0 * (wb1 * (a1 + 3.0) + 2.0 * wb2 * (a2 + 3.0))
+        ab = I1 * t13 - 3.0
+        bb = I2 * t23 - 3.0
+        energy += wg * (c10 * ab + c01 * bb + c20 * ab * ab + c11 * ab * bb + c02 * bb * bb)
+        wb0 = c10 + 2.0 * c20 * ab + c11 * bb
+        wb1 = c01 + c11 * ab + 2.0 * c02 * bb
+        w3 = (-wb0 * I1 * t13 - 2.0 * wb1 * I2 * t23) / (3.0 * I3)
         if form == 1:
-            U, dU, _ = vol_energy(J, p)
-            energy += w * U
-            ki += dU * J
-        V += w
-        v += w * J
-        for i in range(3):
-            for K in range(3):
-                Q[g, i, K] = w * (kf * F[i, K] + ki * Fi[K, i])
-                M[g, i, K] = w * J * Fi[K, i]
-        if wb2 != 0.0:
-            kc = -2.0 * wb2 * t23 * w
-            for i in range(3):
-                f0, f1, f2 = F[i, 0], F[i, 1], F[i, 2]
-                Q[g, i, 0] += kc * (f0 * c00 + f1 * c01_ + f2 * c02_)
-                Q[g, i, 1] += kc * (f0 * c01_ + f1 * c11_ + f2 * c12)
-                Q[g, i, 2] += kc * (f0 * c02_ + f1 * c12 + f2 * c22)
-    dU = 0.0
+            U, dU, _ = vol_energy(det, p)
+            energy += wg * U
+            w3 += 0.5 * dU / det
+        w1 = wb0 * t13
+        w2 = wb1 * t23
+        # adj C = I3 C^-1
+        d00 = cc11 * c22 - c1_2 * c1_2
+        d11 = c00 * c22 - c0_2 * c0_2
+        d22 = c00 * cc11 - c0_1 * c0_1
+        d01 = c0_2 * c1_2 - c0_1 * c22
+        d12 = c0_1 * c0_2 - c00 * c1_2
+        d02 = c0_1 * c1_2 - cc11 * c0_2
+        dg = w1 + w2 * I1
+        s00 = 2.0 * (dg - w2 * c00 + w3 * d00)
+        s11 = 2.0 * (dg - w2 * cc11 + w3 * d11)
+        s22 = 2.0 * (dg - w2 * c22 + w3 * d22)
+        s01 = 2.0 * (-w2 * c0_1 + w3 * d01)
+        s12 = 2.0 * (-w2 * c1_2 + w3 * d12)
+        s02 = 2.0 * (-w2 * c0_2 + w3 * d02)
+        # P = F S, times the Gauss weight
+        p00 = wg * (f00 * s00 + f01 * s01 + f02 * s02)
+        p01 = wg * (f00 * s01 + f01 * s11 + f02 * s12)
+        p02 = wg * (f00 * s02 + f01 * s12 + f02 * s22)
+        p10 = wg * (f10 * s00 + f11 * s01 + f12 * s02)
+        p11 = wg * (f10 * s01 + f11 * s11 + f12 * s12)
+        p12 = wg * (f10 * s02 + f11 * s12 + f12 * s22)
+        p20 = wg * (f20 * s00 + f21 * s01 + f22 * s02)
+        p21 = wg * (f20 * s01 + f21 * s11 + f22 * s12)
+        p22 = wg * (f20 * s02 + f21 * s12 + f22 * s22)
+        for a in range(8):
+            g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
+            fe[3 * a] += p00 * g0 + p01 * g1 + p02 * g2
+            fe[3 * a + 1] += p10 * g0 + p11 * g1 + p12 * g2
+            fe[3 * a + 2] += p20 * g0 + p21 * g1 + p22 * g2
+            if form == 0:
+                dv[3 * a] += wg * (g0 * a00 + g1 * a10 + g2 * a20)
+                dv[3 * a + 1] += wg * (g0 * a01 + g1 * a11 + g2 * a21)
+                dv[3 * a + 2] += wg * (g0 * a02 + g1 * a12 + g2 * a22)
+        v += wg * det
+        V += wg
     if form == 0:
         U, dU, _ = vol_energy(v / V, p)
         energy += V * U
-    for c in range(24):
-        fe[c] = 0.0
-    for g in range(8):
-        G = dndX[g]
-        for i in range(3):
-            q0 = Q[g, i, 0] + dU * M[g, i, 0]
-            q1 = Q[g, i, 1] + dU * M[g, i, 1]
-            q2 = Q[g, i, 2] + dU * M[g, i, 2]
-            for a in range(8):
-                fe[3 * a + i] += q0 * G[a, 0] + q1 * G[a, 1] + q2 * G[a, 2]
+        for c in range(24):
+            fe[c] += dU * dv[c]
     return energy, jmin
 
 
@@ -108,11 +157,11 @@ def brick_residual(u, bricks, dndX, wgp, params, form, fe, energy, jmin):
     """All bricks' forces in parallel (blocks of CHUNK); each brick writes its own row."""
     m = bricks.shape[0]
     for c in prange((m + CHUNK - 1) // CHUNK):
-        ue = np.empty((8, 3))
-        Q = np.empty((8, 3, 3))
+        ue = np.empty(24)
+        dv = np.empty(24)
         for e in range(c * CHUNK, min(m, (c + 1) * CHUNK)):
             for a in range(8):
                 for i in range(3):
-                    ue[a, i] = u[bricks[e, a], i]
-            energy[e], jmin[e] = _element_residual(ue, dndX[e], wgp[e], params[e], form,
-                                                   fe[e], Q)
+                    ue[3 * a + i] = u[bricks[e, a], i]
+            energy[e], jmin[e] = element_residual(ue, dndX[e], wgp[e], params[e], form,
+                                                  fe[e], dv)
