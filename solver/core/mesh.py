@@ -12,6 +12,11 @@ import numpy as np
 from solver.core.element import reference_geometry
 from solver.core.errors import MeshError
 
+# A brick's six faces as local node indices (k = 0 .. 7 in the element's order), each
+# wound with its normal pointing out of the brick: bottom, top, then the four sides.
+BRICK_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
+                        [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+
 
 @dataclass
 class Mesh:
@@ -97,9 +102,7 @@ class Mesh:
 
     def boundary_faces(self):
         """Quadrilateral faces (k, 4) that belong to one brick only (wedge faces may repeat ids)."""
-        local = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4],
-                          [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
-        faces = self.bricks[:, local].reshape(-1, 4)
+        faces = self.bricks[:, BRICK_FACES].reshape(-1, 4)
         key = np.sort(faces, axis=1)
         degenerate = np.array([len(set(f)) < 3 for f in key])
         _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)

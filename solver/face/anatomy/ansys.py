@@ -109,7 +109,7 @@ from scipy.spatial import cKDTree
 
 from solver.core.element import shape_functions, shape_gradients
 from solver.core.errors import FaceFMUError, MeshError, MeshFileError
-from solver.core.mesh import Mesh
+from solver.core.mesh import BRICK_FACES, Mesh
 from solver.face.anatomy.base import MUSCLE_NAMES, Anatomy, Fibre, RigidSurface
 
 NODE_FILE, ELEM_FILE = "newface.node", "newface.elem"
@@ -537,9 +537,7 @@ def _brick_faces(tris, mesh):
     to half its warp. Contact on the triangles lets a node rest inside the other lip's
     bricks by that much; on the quads, solver.face.terms.contact.centred_triangles follows
     the bilinear face."""
-    local = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6],
-                      [3, 0, 4, 7]])
-    faces = mesh.bricks[:, local].reshape(-1, 4)
+    faces = mesh.bricks[:, BRICK_FACES].reshape(-1, 4)
     faces = faces[np.array([len(set(f)) == 4 for f in faces], dtype=bool)]
     index = {tuple(sorted(t)): i for i, t in enumerate(tris.tolist())}
     partner = -np.ones(len(tris), dtype=np.int64)
