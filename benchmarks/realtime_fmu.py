@@ -22,8 +22,8 @@ error against the full-order model on a lip gesture.
 
 The gesture (solver.rom.accuracy.GESTURES, --gesture; jaw inputs go to the FMU's jaw):
 oop_ris, 0.3 s, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held. Prints the machine load
-(os.getloadavg) before and after; --md appends a markdown table row per call to FILE
-(written with a header when new) with the command and the commit.
+(os.getloadavg) before and after; --md writes the gesture's markdown table row into FILE
+(replacing that gesture's earlier row) with the command and the commit.
 """
 
 import argparse
@@ -135,7 +135,7 @@ def main(argv=None):
     ap.add_argument("--gesture", default="oop_ris")
     ap.add_argument("--repeat", type=int, default=5, help="runs of each (FMU: fresh instances)")
     ap.add_argument("--no-full", action="store_true", help="skip the full-order reference")
-    ap.add_argument("--md", type=Path, help="append the figures as a markdown table row")
+    ap.add_argument("--md", type=Path, help="write the figures as the gesture's row of this markdown table")
     args = ap.parse_args(argv)
     for var in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(var, "1")
@@ -198,18 +198,15 @@ def main(argv=None):
               f"protrusion {pr:.3f} mm (range {rng_pr:.2f} mm)")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in load())}")
     if args.md:
-        from solver.app.provenance import command, commit
-        new = not args.md.is_file()
-        with open(args.md, "a") as fh:
-            if new:
-                fh.write("| gesture | FMU real-time factor, best / median | in process, best "
-                         "| max error aperture / protrusion (mm) | range (mm) | command, "
-                         "commit |\n|---|---|---|---|---|---|\n")
-            fh.write(f"| {args.gesture} ({duration} s, {1e3 * args.step:g} ms steps) | "
-                     f"{best['wall_s'] / duration:.2f} / {med / duration:.2f} | "
-                     f"{min(walls) / duration:.2f} | {ap:.3f} / {pr:.3f} | {rng_ap:.2f} / "
-                     f"{rng_pr:.2f} | `{command('benchmarks/realtime_fmu.py')}`, "
-                     f"{commit()} |\n")
+        from solver.app.provenance import command, commit, upsert_row
+        key = f"{args.gesture} ({duration} s, {1e3 * args.step:g} ms steps)"
+        upsert_row(args.md, "| gesture | FMU real-time factor, best / median | in process, "
+                   "best | max error aperture / protrusion (mm) | range (mm) | command, "
+                   "commit |\n|---|---|---|---|---|---|", key,
+                   f"| {key} | {best['wall_s'] / duration:.2f} / {med / duration:.2f} | "
+                   f"{min(walls) / duration:.2f} | {ap:.3f} / {pr:.3f} | {rng_ap:.2f} / "
+                   f"{rng_pr:.2f} | `{command('benchmarks/realtime_fmu.py')}`, "
+                   f"{commit()} |")
     return 0
 
 

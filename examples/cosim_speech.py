@@ -37,7 +37,7 @@ MUSCLES = ("LLSAN", "LAO", "ZYG", "RIS", "BUC", "DAO", "DLI", "MENT", "OOP", "OO
 def build_fmus(dest):
     """Build both FMUs in child processes: building imports the slave scripts, and a
     solver package imported here would shadow the FMU's own copy at run time."""
-    dest = Path(dest)
+    dest = Path(dest).resolve()              # the controller's build runs in CONTROL
     subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(dest)],
                    check=True, stdout=subprocess.DEVNULL)
     subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",

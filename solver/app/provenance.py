@@ -34,3 +34,18 @@ def command(script, argv=None):
     (default: this process's arguments)."""
     args = sys.argv[1:] if argv is None else argv
     return " ".join(["python", script, *args])
+
+
+def upsert_row(path, header, key, row):
+    """Write the markdown table row `row` (a line starting "| key ") into the table file
+    path, replacing the row of the same key: a table that benchmarks fill one row per call
+    holds each key's latest figures only. header: the table's first two lines; a new file,
+    or one whose header differs, starts afresh."""
+    path = Path(path)
+    lines = path.read_text().splitlines() if path.is_file() else []
+    head = header.rstrip("\n").splitlines()
+    if lines[:len(head)] != head:
+        lines = head
+    prefix = f"| {key} "
+    body = [ln for ln in lines[len(head):] if ln.strip() and not ln.startswith(prefix)]
+    path.write_text("\n".join(head + body + [row.rstrip("\n")]) + "\n")

@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from solver.core import _cache  # noqa: F401  (the solver's kernel cache, before any @njit)
+from solver.core.kernels.invariants import gradient_adjugate
 
 _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf checks stay
 
@@ -24,8 +25,9 @@ _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf che
 @njit(cache=True, fastmath=_FM)
 def damping_geometry(q, Ve, le, dndX, wgp, ue, dxn, wn, dvn):
     """The shape X + V q + L of the selected bricks for their damping (le (k, 24) the
-    lifting L on them): fills ue (k, 24) their displacements V_e q + le_e, dxn (k, 8, 8, 3) dN/dx, wn (k, 8) w det F and dvn (k, 24)
-    sum_g wn dN/dx. Returns the smallest det F."""
+    lifting L on them): fills ue (k, 24) their displacements V_e q + le_e, dxn (k, 8, 8, 3)
+    dN/dx = dN/dX adj F / det F, wn (k, 8) w det F and dvn (k, 24) sum_g wn dN/dx. Returns
+    the smallest det F (a det F <= 0 or NaN at once)."""
     k, _, r = Ve.shape
     jmin = np.inf
     for e in range(k):
@@ -37,30 +39,8 @@ def damping_geometry(q, Ve, le, dndX, wgp, ue, dxn, wn, dvn):
             dvn[e, c] = 0.0
         for g in range(8):
             G = dndX[e, g]
-            f00 = f11 = f22 = 1.0
-            f01 = f02 = f10 = f12 = f20 = f21 = 0.0
-            for a in range(8):
-                g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
-                u0, u1, u2 = ue[e, 3 * a], ue[e, 3 * a + 1], ue[e, 3 * a + 2]
-                f00 += u0 * g0
-                f01 += u0 * g1
-                f02 += u0 * g2
-                f10 += u1 * g0
-                f11 += u1 * g1
-                f12 += u1 * g2
-                f20 += u2 * g0
-                f21 += u2 * g1
-                f22 += u2 * g2
-            a00 = f11 * f22 - f12 * f21
-            a01 = f02 * f21 - f01 * f22
-            a02 = f01 * f12 - f02 * f11
-            a10 = f12 * f20 - f10 * f22
-            a11 = f00 * f22 - f02 * f20
-            a12 = f02 * f10 - f00 * f12
-            a20 = f10 * f21 - f11 * f20
-            a21 = f01 * f20 - f00 * f21
-            a22 = f00 * f11 - f01 * f10
-            det = f00 * a00 + f01 * a10 + f02 * a20
+            _, _, _, _, _, _, _, _, _, a00, a01, a02, a10, a11, a12, a20, a21, a22, det = \
+                gradient_adjugate(ue[e], G)
             if not det > 0.0:
                 return det
             if det < jmin:

@@ -13,7 +13,8 @@ Wb1 = dW/dI1b, Wb2 = dW/dI2b,
 
 With mean dilatation the volumetric part is U'(theta) dv/dx after the Gauss loop,
 theta = v / V, dv/dx_ai = sum_g w_g (dN_a/dX adj F)_i. Everything per Gauss point is
-written in scalars (no small arrays). The reduced model's online kernels
+written in scalars (no small arrays; F and adj F from
+solver.core.kernels.invariants.gradient_adjugate). The reduced model's online kernels
 (solver.rom.online_kernels) call the same element function; it is inlined into each
 caller at numba's level (inline="always"), so that their fast-math flags apply to it (a
 call across numba modules is not inlined by LLVM).
@@ -25,6 +26,7 @@ params (m, 6); fe (m, 24), energy (m,), jmin (m,).
 import numpy as np
 from numba import njit, prange
 
+from solver.core.kernels.invariants import gradient_adjugate
 from solver.core.kernels.mooney_rivlin import vol_energy
 
 
@@ -45,38 +47,8 @@ def element_residual(ue, dndX, wgp, p, form, fe, dv):
     for g in range(8):
         G = dndX[g]
         wg = wgp[g]
-        f00 = 1.0
-        f01 = 0.0
-        f02 = 0.0
-        f10 = 0.0
-        f11 = 1.0
-        f12 = 0.0
-        f20 = 0.0
-        f21 = 0.0
-        f22 = 1.0
-        for a in range(8):
-            g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
-            u0, u1, u2 = ue[3 * a], ue[3 * a + 1], ue[3 * a + 2]
-            f00 += u0 * g0
-            f01 += u0 * g1
-            f02 += u0 * g2
-            f10 += u1 * g0
-            f11 += u1 * g1
-            f12 += u1 * g2
-            f20 += u2 * g0
-            f21 += u2 * g1
-            f22 += u2 * g2
-        # adj F = det F F^-1
-        a00 = f11 * f22 - f12 * f21
-        a01 = f02 * f21 - f01 * f22
-        a02 = f01 * f12 - f02 * f11
-        a10 = f12 * f20 - f10 * f22
-        a11 = f00 * f22 - f02 * f20
-        a12 = f02 * f10 - f00 * f12
-        a20 = f10 * f21 - f11 * f20
-        a21 = f01 * f20 - f00 * f21
-        a22 = f00 * f11 - f01 * f10
-        det = f00 * a00 + f01 * a10 + f02 * a20
+        f00, f01, f02, f10, f11, f12, f20, f21, f22, a00, a01, a02, a10, a11, a12, a20, \
+            a21, a22, det = gradient_adjugate(ue, G)
         if not det > 0.0:
             return np.inf, det                     # <= 0 or NaN
         if det < jmin:

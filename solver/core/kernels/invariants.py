@@ -40,6 +40,47 @@ def deformation_gradient(ue, G, F):
             F[i, K] = s
 
 
+@njit(cache=True, inline="always")
+def gradient_adjugate(ue, G):
+    """F = I + sum_a u_a (x) dN_a/dX at a Gauss point in scalars, with adj F = det F F^-1:
+    ue (24,) node-major x, y, z, G (8, 3) dN/dX. Returns F, adj F (each row-major, 9
+    values) and det F as one flat 19-tuple. Inlined into its callers at numba's level, so
+    that their fast-math flags apply and no small arrays are made."""
+    f00 = 1.0
+    f01 = 0.0
+    f02 = 0.0
+    f10 = 0.0
+    f11 = 1.0
+    f12 = 0.0
+    f20 = 0.0
+    f21 = 0.0
+    f22 = 1.0
+    for a in range(8):
+        g0, g1, g2 = G[a, 0], G[a, 1], G[a, 2]
+        u0, u1, u2 = ue[3 * a], ue[3 * a + 1], ue[3 * a + 2]
+        f00 += u0 * g0
+        f01 += u0 * g1
+        f02 += u0 * g2
+        f10 += u1 * g0
+        f11 += u1 * g1
+        f12 += u1 * g2
+        f20 += u2 * g0
+        f21 += u2 * g1
+        f22 += u2 * g2
+    a00 = f11 * f22 - f12 * f21
+    a01 = f02 * f21 - f01 * f22
+    a02 = f01 * f12 - f02 * f11
+    a10 = f12 * f20 - f10 * f22
+    a11 = f00 * f22 - f02 * f20
+    a12 = f02 * f10 - f00 * f12
+    a20 = f10 * f21 - f11 * f20
+    a21 = f01 * f20 - f00 * f21
+    a22 = f00 * f11 - f01 * f10
+    det = f00 * a00 + f01 * a10 + f02 * a20
+    return (f00, f01, f02, f10, f11, f12, f20, f21, f22,
+            a00, a01, a02, a10, a11, a12, a20, a21, a22, det)
+
+
 @njit(cache=True)
 def inverse3(a, out):
     """out = a^-1 for a 3x3 matrix; returns det a."""
