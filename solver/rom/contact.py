@@ -175,9 +175,7 @@ class _Lip:
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
         total, sig = 0.0, 0
-        self.xe[:self.n] = x
-        self.xe[self.n:] = np.einsum("cb,cbi->ci", t.virtual_weights, x[t.virtual_nodes])
-        x = self.xe
+        x = t.extend(x, self.xe)
         for w in self.passes:
             p, nrm = w["p"], w["nrm"]
             # nrm.update(x), the mirror part in numba

@@ -99,6 +99,23 @@ def closest_point(p, xv, ia, ib, ic, w):
 
 
 @njit(cache=True)
+def extend_points(x, nodes, weights, out):
+    """out (n + c, 3): the points x (n, 3), then c points sum_b weights[v, b]
+    x[nodes[v, b]] (nodes, weights (c, b): e.g. a surface's virtual vertices)."""
+    n = x.shape[0]
+    for i in range(n):
+        out[i, 0], out[i, 1], out[i, 2] = x[i, 0], x[i, 1], x[i, 2]
+    for v in range(nodes.shape[0]):
+        a0 = a1 = a2 = 0.0
+        for b in range(nodes.shape[1]):
+            w, m = weights[v, b], nodes[v, b]
+            a0 += w * x[m, 0]
+            a1 += w * x[m, 1]
+            a2 += w * x[m, 2]
+        out[n + v, 0], out[n + v, 1], out[n + v, 2] = a0, a1, a2
+
+
+@njit(cache=True)
 def surface_normals(x, tris, nbr, verts, fn, en, vn):
     """Unit face normals fn (t, 3), edge pseudo-normals en (t, 3, 3) (edge j of triangle t;
     the face normal on a free edge) and angle-weighted vertex normals vn (p, 3) (rows

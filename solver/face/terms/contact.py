@@ -147,7 +147,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from solver.core.errors import ParameterError
-from solver.core.kernels.contact import (nearest, pair_distances, rest_offsets,
+from solver.core.kernels.contact import (extend_points, nearest, pair_distances, rest_offsets,
                                          rigid_contact, signed_gaps, surface_contact,
                                          surface_normals)
 from solver.core.kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
@@ -721,10 +721,13 @@ class LipContact(_Report, Term):
         vertices of the lip surfaces (centred_triangles)."""
         return self.extend(self.mesh.nodes + u)
 
-    def extend(self, x):
-        """(n + c, 3): node positions x (n, 3), then the virtual vertices'."""
-        return np.vstack([x, np.einsum("cb,cbi->ci", self.virtual_weights,
-                                       x[self.virtual_nodes])])
+    def extend(self, x, out=None):
+        """(n + c, 3): node positions x (n, 3), then the virtual vertices' (into out when
+        given)."""
+        if out is None:
+            out = np.empty((len(x) + len(self.virtual_nodes), 3))
+        extend_points(x, self.virtual_nodes, self.virtual_weights, out)
+        return out
 
     def _set_pairs(self, q, ptr, pair_tri, pair_free):
         """Put the candidate pairs (ptr, pair triangles, pair_free) in the pass q, with the
