@@ -823,7 +823,7 @@ def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_t
     pairs, and the rest pairs come back exactly with the rest state (restore)."""
     from solver.core.system import System
     mesh, ida, idb, fa, fb = two_blocks()
-    term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0, divisions=1)
+    term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0, divisions=1, pattern_margin=0)
     q = term.passes[0]
     rest = (q["ptr"].copy(), q["pair_tri"].copy())
     sysm = System([term], mesh.n_nodes, [])
@@ -852,3 +852,42 @@ def test_lip_candidates_follow_the_converged_state_and_the_system_pattern_with_t
     q = term.passes[0]
     assert np.array_equal(q["ptr"], rest[0]) and np.array_equal(q["pair_tri"], rest[1])
     assert term.blocks_generation == generation + 2
+
+
+def test_the_pattern_block_holds_the_followed_candidates_and_is_part_of_the_state():
+    """The slide of the test above with the default pattern margin: the new candidates
+    fall in the pattern block made at rest (no new pattern), each pair scatters into the
+    row of its own nodes, and the forces are those of a term whose pattern follows every
+    change (pattern_margin 0). A snapshot taken there brings that pattern back after a
+    restore elsewhere; a snapshot that is not this system's is refused by name."""
+    from solver.core.system import System
+    mesh, ida, idb, fa, fb = two_blocks()
+    u = np.zeros((mesh.n_nodes, 3))
+    u[idb] = [2.5, 0.0, -0.05]
+    forces, generations, systems = [], [], []
+    for margin in (0.0, 3.0):
+        term = LipContact(mesh, fb, fa, max_pairs=4, radius=2.0, divisions=1,
+                          pattern_margin=margin)
+        sysm = System([term], mesh.n_nodes, [])
+        generation = term.blocks_generation
+        sysm.commit(u.ravel())
+        generations.append(term.blocks_generation - generation)
+        for q in term.passes:
+            assert np.array_equal(q["block"][q["rows"]], q["nodes"])
+        run = Runner(term, mesh.n_nodes)
+        run(u, False)
+        forces.append(term.force.copy())
+        systems.append((sysm, term))
+    assert generations == [1, 0]
+    assert np.array_equal(forces[0], forces[1])
+    sysm, term = systems[0]                                # the pattern made at u
+    at_u = sysm.snapshot()
+    sysm.restore(np.zeros(3 * mesh.n_nodes))                     # a pattern made at rest
+    assert not np.array_equal(sysm.snapshot(), at_u)
+    sysm.restore(u.ravel(), at_u)
+    assert np.array_equal(sysm.snapshot(), at_u)
+    with pytest.raises(ValueError, match="pattern"):
+        sysm.restore(u.ravel(), at_u[:-1])
+    with pytest.raises(ValueError, match=term.name):
+        term.set_pattern_state(at_u[1:] + 10 ** 6)
+    assert np.array_equal(sysm.snapshot(), at_u)                 # left as it was

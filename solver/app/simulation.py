@@ -216,17 +216,20 @@ class Simulation:
         return {"t": self.t, "u": self.face.u.copy(), "v": v.copy(),
                 "activation": self.face.activation.start.copy(),
                 "jaw": np.array(self.jaw),
-                "h": self.integrator.h if self.integrator is not None else 0.0}
+                "h": self.integrator.h if self.integrator is not None else 0.0,
+                "pattern": self.face.model.system().snapshot()}
 
     def set_state(self, state):
         """Resume from a get_state dict: time, displacements, velocities, activations,
-        jaw pose and substep size."""
+        jaw pose, substep size and the contact's sparsity pattern (without "pattern": one
+        picked at u)."""
         self.t = float(state["t"])
         self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
         self.face.activation.start = np.array(state["activation"], dtype=float)
         self.face.activation.target = self.face.activation.start.copy()
         self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
-        self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
+        self.face.model.system().restore(self.face.model.u.ravel(),   # contact candidates
+                                         state.get("pattern"))
         if self.integrator is not None:
             self.integrator.v = np.array(state["v"], dtype=float).reshape(-1, 3)
             self.integrator.h = float(state["h"])

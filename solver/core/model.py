@@ -182,6 +182,7 @@ class Model:
         pres = sysm.prescribed
         p_target = np.array([self._target[d] for d in pres])
         u_start = self.u.ravel().copy()
+        pattern_start = sysm.snapshot()
         p_start = u_start[pres]
         u = u_start.copy()
         lam, dlam = 0.0, 1.0 / max(int(steps), 1)
@@ -190,7 +191,7 @@ class Model:
         while lam < 1.0:
             if len(res.steps) >= max_steps:
                 sysm.lam = 0.0
-                sysm.restore(u_start)
+                sysm.restore(u_start, pattern_start)
                 res.reason = (f"load stepping crawls: lam = {lam:.4g} after "
                               f"{len(res.steps)} load steps (at most {max_steps})")
                 return res
@@ -208,14 +209,14 @@ class Model:
                 res.reason = rep.reason
                 if run_of_cuts > max_cutbacks:
                     sysm.lam = 0.0
-                    sysm.restore(u_start)
+                    sysm.restore(u_start, pattern_start)
                     res.reason = (f"load step at lam = {lam_try:.4g} failed after "
                                   f"{max_cutbacks} cutbacks: {rep.reason}")
                     return res
                 dlam *= 0.5
                 if dlam < min_increment:
                     sysm.lam = 0.0
-                    sysm.restore(u_start)
+                    sysm.restore(u_start, pattern_start)
                     res.reason = (f"load step from lam = {lam:.6g} failed: the increment "
                                   f"fell below {min_increment:g} ({rep.reason})")
                     return res

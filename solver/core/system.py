@@ -45,10 +45,34 @@ class System:
         self.set_constraints(self.prescribed)
         return True
 
-    def restore(self, u):
+    def _patterned(self):
+        return [t for t in self.terms if callable(getattr(t, "pattern_state", None))]
+
+    def snapshot(self):
+        """(k,) int64: the pattern state of the terms whose blocks follow the state (their
+        pattern_state(), each after its length), for restore."""
+        parts = [np.asarray(t.pattern_state(), dtype=np.int64) for t in self._patterned()]
+        return np.concatenate([np.array([len(p) for p in parts], dtype=np.int64), *parts])
+
+    def restore(self, u, snapshot=None):
         """Put the terms whose blocks follow the converged state (follow_state) at u
-        (ndof,), as after a commit there, and sync: a state restored (a failed step,
-        set_state) then has the blocks it had when it was reached."""
+        (ndof,), as after a commit there, with the pattern of snapshot (a snapshot()
+        taken when u was reached; None: a pattern picked at u alone), and sync: a state
+        restored (a failed step, set_state) then has the blocks it had when it was
+        reached, and repeats its steps exactly."""
+        terms = self._patterned()
+        if snapshot is None:
+            parts = [None] * len(terms)
+        else:
+            data = np.asarray(snapshot, dtype=np.int64).ravel()
+            lens = data[:len(terms)]
+            if len(data) < len(terms) or np.any(lens < 0) \
+                    or len(terms) + lens.sum() != len(data):
+                raise ValueError(f"a pattern snapshot of {len(data)} numbers does not fit "
+                                 f"this system's {len(terms)} terms")
+            parts = np.split(data[len(terms):], np.cumsum(lens)[:-1]) if terms else []
+        for t, part in zip(terms, parts):
+            t.set_pattern_state(part)
         st = self.state(u)
         for t in self.terms:
             if callable(getattr(t, "follow_state", None)):

@@ -204,6 +204,7 @@ class Transient:
         u, v = model.u.ravel().copy(), self.v.ravel().copy()
         p_start = u[pres].copy()
         u0, v0, d0 = u.copy(), v.copy(), self.dissipated
+        pattern0 = sysm.snapshot()
         touch = self._touching_at(sysm, u)                 # at u_n, from u_n alone
         stats = StepStats()
         t, run, prev = t0, 0, None
@@ -230,7 +231,7 @@ class Transient:
                     self.v = v0.reshape(-1, 3)
                     self.dissipated = d0
                     sysm.lam = 0.0
-                    sysm.restore(u0)
+                    sysm.restore(u0, pattern0)
                     return stats
                 h_prop = h / 4
                 continue
@@ -327,6 +328,7 @@ def relax(model, alpha=40.0, beta=0.03, ramp=0.1, chunk=0.1, t_max=2.0, tol=0.01
     sysm = model.system()
     u_start = model.u.ravel().copy()
     lam_start = sysm.lam
+    pattern_start = sysm.snapshot()
     tr = Transient(model, alpha=alpha, beta=beta, inertia=False, damping=True, tol=tol,
                    max_substep=max_substep, hold="ramp")
     res = RelaxResult()
@@ -372,5 +374,5 @@ def relax(model, alpha=40.0, beta=0.03, ramp=0.1, chunk=0.1, t_max=2.0, tol=0.01
     sysm = model.system()
     model.u = u_start.reshape(-1, 3).copy()
     sysm.lam = lam_start
-    sysm.restore(u_start)
+    sysm.restore(u_start, pattern_start)
     return res

@@ -602,7 +602,8 @@ def _unchanged(sim, snap):
     (st, dissipated) = snap
     now, d = _snapshot(sim)
     return (now["t"] == st["t"] and d == dissipated
-            and all(np.array_equal(now[k], st[k]) for k in ("u", "v", "activation")))
+            and all(np.array_equal(now[k], st[k]) for k in ("u", "v", "activation", "pattern")
+                    if k in st))
 
 
 def lip_outputs(sim):

@@ -120,8 +120,15 @@ lip's inner face that it may wrap around; and the slave in front of the triangle
 or behind it by at most `behind`), which keeps the backs and the filled caps of closed lip
 surfaces out; at most max_pairs (48) nearest per slave. They are picked at rest and again
 at every converged state (follow_state, at each commit), so that a lip sliding over the
-other keeps the patch under it; the System rebuilds its sparsity pattern when they change
-(blocks_generation), and a restored state gets back the pairs it had. Every node of a lip
+other keeps the patch under it. The sparsity pattern does not follow every change: a
+pass's pattern block holds a row (slave, the quad's four nodes) for every quad within
+radius + pattern_margin (3 mm) of the slave, facing or not, where it was last made (it
+holds the candidates of every state in which no node has moved by more than half the
+margin since); it is made again (blocks_generation, and the System
+rebuilds its pattern, its reduction and the factorization's analysis) only when a
+candidate falls outside it, and only the active pairs' rows are scattered. The pattern is
+part of the state (pattern_state, System.snapshot): a restored state gets back the pairs
+and the pattern it had, so that a repeated step repeats exactly. Every node of a lip
 surface that is not on both (the joined mouth corners) is a slave, also one without
 candidates at rest (unless follow is off), and a slave inside the other lip at rest by more than rest_tolerance
 is dropped. Each slave takes its nearest candidate;
@@ -652,14 +659,19 @@ class LipContact(_Report, Term):
                    (default depth: a penetrating slave keeps the triangle it is in)
     divisions      1 or 2: the lip faces' triangulation (centred_triangles; 2: the
                    quads' 2 x 2 subdivision, a 32nd of their warp from the bilinear faces)
+    pattern_margin mm: the pattern block reaches this much beyond radius (follow only)
     """
 
     def __init__(self, mesh, upper_faces, lower_faces, penalty=PENALTY, name="lip_contact",
                  radius=6.0, max_pairs=48, depth=0.5, rest_tolerance=0.1, smoothing=0.0,
-                 mirror_nodes=None, fade=EDGE_FADE, follow=True, behind=None, divisions=2):
+                 mirror_nodes=None, fade=EDGE_FADE, follow=True, behind=None, divisions=2,
+                 pattern_margin=3.0):
         _check(penalty, smoothing)
         if not fade > 0:
             raise ParameterError(f"{name}: fade = {fade!r} must be > 0 (mm)")
+        if not pattern_margin >= 0:
+            raise ParameterError(f"{name}: pattern_margin = {pattern_margin!r} must be >= 0 "
+                                 "(mm)")
         self.name, self.mesh, self.fade = name, mesh, float(fade)
         self.depth, self.smoothing = float(depth), float(smoothing)
         self.behind = self.depth if behind is None else float(behind)
@@ -688,7 +700,15 @@ class LipContact(_Report, Term):
         areas = [tributary_areas(mesh.nodes, f, n) for f in (upper_faces, lower_faces)]
         real = [np.unique(np.asarray(f)) for f in (upper_faces, lower_faces)]
         self.radius, self.max_pairs, self.follow = float(radius), int(max_pairs), follow
+        self.pattern_margin = float(pattern_margin)
         self._corners, self._weights = corners, weights
+        # a pattern row is a slave and the four nodes of a quad, in the order its
+        # triangles' pairs scatter them (the distinct rows of corners)
+        self._quads, self._quad_of = [], []
+        for co in corners:
+            quads, of = np.unique(np.asarray(co), axis=0, return_inverse=True)
+            self._quads.append(quads)
+            self._quad_of.append(of.ravel())
         self.passes, dropped = [], []
         for s, m in ((0, 1), (1, 0)):
             slaves = np.setdiff1d(real[s], real[m])
@@ -702,6 +722,7 @@ class LipContact(_Report, Term):
             q = {"slaves": slaves, "slave_surface": s, "master": m,
                  "k": penalty * areas[s][slaves]}
             self._set_pairs(q, *self._pairs(x0, slaves, s, m))
+            self._widen(q, x0)
             self.passes.append(q)
         self.dropped = np.concatenate(dropped)
         self.slaves = np.concatenate([q["slaves"] for q in self.passes])
@@ -741,7 +762,74 @@ class LipContact(_Report, Term):
                   "pair_weights": np.ascontiguousarray(self._weights[m][pair_tri]),
                   "fe": np.zeros((p, 12)), "ke": np.zeros((p, 12, 12)),
                   "active": -np.ones(len(slaves), dtype=np.int64),
-                  "kept": -np.ones(len(slaves), dtype=np.int64)})
+                  "kept": -np.ones(len(slaves), dtype=np.int64),
+                  "keys": owner * len(self._quads[m]) + self._quad_of[m][pair_tri]})
+        q["rows"] = self._rows(q)
+
+    @staticmethod
+    def _rows(q):
+        """(p,) each candidate pair's row in the pass's pattern block, or None when one of
+        them has no row there."""
+        bk, keys = q.get("block_keys"), q["keys"]
+        if bk is None or (len(keys) and not len(bk)):
+            return None
+        at = np.minimum(np.searchsorted(bk, keys), max(len(bk) - 1, 0))
+        return at if np.array_equal(bk[at], keys) else None
+
+    def _set_block(self, q, keys):
+        """The pass's pattern block: rows (slave, the 4 nodes of a quad) for the sorted
+        unique keys slave position * quads + quad; the candidate pairs' rows in it."""
+        m, nq = q["master"], len(self._quads[q["master"]])
+        q["block_keys"] = keys
+        q["block"] = np.column_stack([q["slaves"][keys // nq], self._quads[m][keys % nq]])
+        q["rows"] = self._rows(q)
+
+    def _widen(self, q, x):
+        """A new pattern block for the pass at positions x: the (slave, quad) pairs of
+        every triangle within radius + pattern_margin, facing or not, and the current
+        candidates' (module docstring: the pattern is kept while the candidates stay in
+        it)."""
+        keys = q["keys"]
+        if self.follow and self.pattern_margin > 0:
+            ptr, tri, _ = self._pairs(x, q["slaves"], q["slave_surface"], q["master"],
+                                      self.radius + self.pattern_margin, None,
+                                      facing_only=False)
+            owner = np.repeat(np.arange(len(q["slaves"])), np.diff(ptr))
+            keys = np.concatenate([keys, owner * len(self._quads[q["master"]])
+                                   + self._quad_of[q["master"]][tri]])
+        self._set_block(q, np.unique(keys).astype(np.int64))
+
+    def pattern_state(self):
+        """(k,) int64: the passes' pattern blocks (their lengths, then their keys), for
+        set_pattern_state: a state restored with it gets back the pattern it had."""
+        keys = [q["block_keys"] for q in self.passes]
+        return np.concatenate([np.array([len(k) for k in keys], dtype=np.int64), *keys])
+
+    def set_pattern_state(self, data):
+        """The pattern blocks of pattern_state(), or None: new ones at the next
+        follow_state (then picked from that state alone)."""
+        if data is None:
+            for q in self.passes:
+                q["block_keys"], q["rows"] = None, None
+            return
+        data = np.asarray(data, dtype=np.int64).ravel()
+        n = len(self.passes)
+        lens = data[:n]
+        if len(data) < n or np.any(lens < 0) or n + lens.sum() != len(data):
+            raise ValueError(f"{self.name}: a pattern state of {len(data)} numbers does not "
+                             f"hold {n} passes' blocks")
+        parts = np.split(data[n:], np.cumsum(lens)[:-1])
+        for q, keys in zip(self.passes, parts):
+            top = len(q["slaves"]) * len(self._quads[q["master"]])
+            if len(keys) and (keys.min() < 0 or keys.max() >= top or np.any(np.diff(keys) <= 0)):
+                raise ValueError(f"{self.name}: a pattern state's keys are not this term's")
+        changed = False
+        for q, keys in zip(self.passes, parts):
+            if q.get("block_keys") is None or not np.array_equal(keys, q["block_keys"]):
+                self._set_block(q, keys.copy())
+                changed = True
+        if changed:
+            self.blocks_generation += 1
 
     def follow_state(self, u):
         """The candidate pairs of the configuration u (n, 3) (follow: the pairs that
@@ -757,6 +845,8 @@ class LipContact(_Report, Term):
             if not (np.array_equal(ptr, q["ptr"]) and np.array_equal(tri, q["pair_tri"])
                     and np.array_equal(free, q["pair_free"])):
                 self._set_pairs(q, ptr, tri, free)
+            if q["rows"] is None:                  # a candidate outside the pattern block
+                self._widen(q, x)
                 changed = True
         if changed:
             self.blocks_generation += 1
@@ -775,12 +865,14 @@ class LipContact(_Report, Term):
                         -np.ones(ns, dtype=np.int64))
         return gap
 
-    def _pairs(self, x, slaves, s, m):
+    def _pairs(self, x, slaves, s, m, radius=None, max_pairs=None, facing_only=True):
         """Candidate pairs at positions x (n + c, 3) of slaves (nodes of surface s) on the
         triangles of surface m: the max_pairs nearest within radius that the slave's
         surface faces and that the slave is not behind by more than depth; (ptr (s + 1,),
-        pair triangles (p,), pair_free (p, 3))."""
-        radius, max_pairs = self.radius, self.max_pairs
+        pair triangles (p,), pair_free (p, 3)). facing_only False: every triangle within
+        radius, as many as there are unless max_pairs is given (the pattern block)."""
+        radius = self.radius if radius is None else radius
+        max_pairs = self.max_pairs if facing_only and max_pairs is None else max_pairs
         tris, fn = self.normals[m].tris, self.normals[m].fn
         cen = x[tris].mean(axis=1)
         reach = np.linalg.norm(x[tris] - cen[:, None], axis=2).max()
@@ -790,14 +882,17 @@ class LipContact(_Report, Term):
         sn = self.normals[s].fn                               # the slave surface's faces
         d2 = np.empty(len(ti))
         pair_distances(x[slaves[si]], x, tris, ti, d2)
-        ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
-        inc_p, inc_t = _incidence(st, len(x))
-        facing = _min_facing(inc_p, inc_t, sn, slaves[si], fn[ti])
-        ok = (d2 <= radius ** 2) & (facing < 0) & (ahead > -FACING_TOLERANCE - self.behind)
+        ok = d2 <= radius ** 2
+        if facing_only:
+            ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
+            inc_p, inc_t = _incidence(st, len(x))
+            facing = _min_facing(inc_p, inc_t, sn, slaves[si], fn[ti])
+            ok &= (facing < 0) & (ahead > -FACING_TOLERANCE - self.behind)
         order = np.lexsort((d2[ok], si[ok]))                  # by slave, nearest first
         si, ti = si[ok][order], ti[ok][order]
-        first = np.arange(len(si)) - np.searchsorted(si, si) < max_pairs
-        si, ti = si[first], ti[first]
+        if max_pairs is not None:
+            first = np.arange(len(si)) - np.searchsorted(si, si) < max_pairs
+            si, ti = si[first], ti[first]
         ptr = np.searchsorted(si, np.arange(len(slaves) + 1))
         # an edge is free for a slave when it borders none of the slave's other candidates
         nbr = self.normals[m].topo.nbr[ti]                               # (p, 3)
@@ -807,7 +902,7 @@ class LipContact(_Report, Term):
         return ptr, ti, np.ascontiguousarray(free)
 
     def blocks(self):
-        return [q["nodes"] for q in self.passes]
+        return [q["block"] for q in self.passes]
 
     def assemble(self, state, asm, block_ids):
         x = self.positions(state.u)
@@ -825,7 +920,7 @@ class LipContact(_Report, Term):
             Tt = T.transpose(0, 2, 1)
             fe = (Tt @ q["fe"][act][:, :, None])[:, :, 0]
             ke = Tt @ q["ke"][act] @ T if asm.need_k else None
-            asm.add_block(b, fe, ke, rows=act)
+            asm.add_block(b, fe, ke, rows=q["rows"][act])
             np.add.at(nodal, q["nodes"][act], -fe.reshape(-1, 5, 3))
             gaps.append(gap)
             forces.append(force)
