@@ -2,12 +2,14 @@
 communication steps, lip and teeth contact on; every failure reproducible from its seed.
 
     python benchmarks/fmu_campaign.py [--seeds 0-199] [--duration 0.1] [--fidelity balanced]
-                                      [--batch 20] [--jobs 1] [--keep DIR] [--doc FILE]
+                                      [--level coarse|medium|fine] [--batch 20] [--jobs 1]
+                                      [--keep DIR] [--doc FILE]
 
 Schedule of seed s (``schedule(s, duration)``, numpy's generator seeded s): communication
 steps of a size drawn log-uniformly between 0.1 and 20 ms (rounded to 0.1 ms) until
 `duration` is reached, each with new activations of all ten muscles, uniform in [0, 1].
-FaceFMU (built once by build_fmu.py) runs the default scene at --fidelity through fmpy, in
+FaceFMU (built once by build_fmu.py) runs the default scene at --fidelity (or, with
+--level, on that generic half-face mesh level at the scene's own tolerances) through fmpy, in
 fresh processes of --batch seeds each, --jobs of them at a time. A seed passes when every
 doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, the state
 serialized at the end has no lip node inside the other lip and none behind the teeth by
@@ -42,7 +44,7 @@ import json, math, sys
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
-fmu_path, fidelity, jobs_path, out_dir = sys.argv[1:5]
+fmu_path, fidelity, level, jobs_path, out_dir = sys.argv[1:6]
 jobs = json.load(open(jobs_path))
 md = read_model_description(fmu_path)
 vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -55,6 +57,9 @@ for job in jobs:
     f.setupExperiment(startTime=0.0)
     f.enterInitializationMode()
     f.setString([vr["fidelity"]], [fidelity])
+    if level:
+        f.setString([vr["level"]], [level])
+        f.setBoolean([vr["half_face"]], [True])
     f.exitInitializationMode()
     t, res = 0.0, {"seed": job["seed"], "problem": "", "steps": 0, "cutbacks": 0}
     for h, acts in job["steps"]:
@@ -102,12 +107,14 @@ def seeds(text):
     return out
 
 
-def probe_for(fidelity):
-    """The penetration probe of the FMU's default model at this fidelity."""
+def probe_for(fidelity, level=None):
+    """The penetration probe of the FMU's default model at this fidelity (level: on that
+    generic half-face level instead)."""
     sys.path.insert(0, str(ROOT))
     from solver.entry import open_simulation
     from solver.validation.stability import Probe
-    sim = open_simulation("default", fidelity=fidelity or None)
+    sim = (open_simulation("default", level=level, half=True) if level else
+           open_simulation("default", fidelity=fidelity or None))
     return Probe(sim.anatomy)
 
 
@@ -123,6 +130,8 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0-199", help="e.g. 0-199 or 3,17,40-45")
     ap.add_argument("--duration", type=float, default=0.1, help="s per schedule")
     ap.add_argument("--fidelity", default="balanced")
+    ap.add_argument("--level", choices=("coarse", "medium", "fine"),
+                    help="the generic half face at this mesh level instead of --fidelity")
     ap.add_argument("--batch", type=int, default=20, help="seeds per fmpy process")
     ap.add_argument("--jobs", type=int, default=1, help="fmpy processes at a time")
     ap.add_argument("--keep", help="build into and keep this folder")
@@ -136,10 +145,11 @@ def main(argv=None):
     subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(base)],
                    check=True, stdout=subprocess.DEVNULL)
     fmu = base / "FaceFMU.fmu"
-    probe = probe_for(args.fidelity)
+    fidelity = "" if args.level else args.fidelity
+    model = f"level {args.level!r}" if args.level else f"fidelity {args.fidelity!r}"
+    probe = probe_for(fidelity, args.level)
     print(f"{len(todo)} random schedules of {args.duration} s (steps {SHORTEST * 1e3:g} to "
-          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, fidelity "
-          f"{args.fidelity!r}, lip and teeth contact; seeds {args.seeds}", flush=True)
+          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, {model}, lip and teeth contact; seeds {args.seeds}", flush=True)
     failed, rows, t0 = {}, [], time.perf_counter()
     def run_batch(i):
         batch = todo[i:i + args.batch]
@@ -148,8 +158,8 @@ def main(argv=None):
         jobs_path.write_text(json.dumps(jobs))
         env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") \
             if args.jobs > 1 else None                 # one core per process
-        proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), args.fidelity,
-                               str(jobs_path), str(base)], capture_output=True, text=True,
+        proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), fidelity,
+                               args.level or "", str(jobs_path), str(base)], capture_output=True, text=True,
                               cwd=base, env=env)
         return jobs, proc
 
@@ -186,7 +196,8 @@ def main(argv=None):
           + (f"; failed seeds: {' '.join(map(str, sorted(failed)))}" if failed else ""))
     for s, p in sorted(failed.items()):
         print(f"  seed {s}: {p}  (python benchmarks/fmu_campaign.py --seeds {s} "
-              f"--duration {args.duration} --fidelity {args.fidelity!r})")
+              f"--duration {args.duration} "
+              + (f"--level {args.level})" if args.level else f"--fidelity {args.fidelity!r})"))
     if args.doc:
         write_doc(args, argv, todo, rows, failed, wall, CONTACT_TOLERANCE)
     if tmp:
@@ -207,8 +218,9 @@ def write_doc(args, argv, todo, rows, failed, wall, tolerance):
              f"{platform.python_version()}), {wall / 60:.1f} min. Each seed: a schedule of "
              f"{args.duration:g} s, communication steps log-uniform between "
              f"{SHORTEST * 1e3:g} and {LONGEST * 1e3:g} ms, each with new activations of all "
-             f"ten muscles uniform in [0, 1]; the default scene at fidelity "
-             f"`{args.fidelity}`, lip and teeth contact on, through fmpy. A seed passes when "
+             f"ten muscles uniform in [0, 1]; the default scene at "
+             + (f"mesh level `{args.level}` (half face)" if args.level else
+                f"fidelity `{args.fidelity}`") + ", lip and teeth contact on, through fmpy. A seed passes when "
              "every doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, "
              "the final state has no lip node inside the other lip and none behind the "
              f"teeth by more than {tolerance} mm (measured outside the model), and its "
