@@ -107,17 +107,17 @@ def _penetrations(probe, state_files):
 
 
 def test_the_default_fmu_keeps_the_lips_in_front_of_the_teeth(fmu, tmp_path, generic_probe):
-    """OOP = 1 for 0.3 s with the FMU's default parameters: the lips protrude, and no lip
+    """OOP = 1 for 0.15 s with the FMU's default parameters: the lips protrude, and no lip
     node goes behind the teeth (measured here, outside the FMU, on its serialized states
     every 50 ms)."""
     from solver.validation.stability import CONTACT_TOLERANCE
-    res, stdout = _run("held_activation.py", fmu, tmp_path, "OOP", "0.3")
+    res, stdout = _run("held_activation.py", fmu, tmp_path, "OOP", "0.15")
     rows = res["rows"]
     assert rows[-1]["lip_protrusion"] > 0.2                   # OOP protrudes the lips
     assert max(r["contact_force"] for r in rows) > 0.0        # contact carries load
     assert "interpenetrate" not in stdout
     depths = _penetrations(generic_probe, res["states"])
-    assert len(depths) == 6
+    assert len(depths) == 3
     assert max(t for _, t in depths) <= CONTACT_TOLERANCE, depths
 
 

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from solver.core.assembly import Assembly, Pattern, Reduction
-from solver.core.terms.base import State
+from solver.core.terms.base import State, pack_parts, unpack_parts
 
 
 class System:
@@ -51,8 +51,7 @@ class System:
     def snapshot(self):
         """(k,) int64: the pattern state of the terms whose blocks follow the state (their
         pattern_state(), each after its length), for restore."""
-        parts = [np.asarray(t.pattern_state(), dtype=np.int64) for t in self._patterned()]
-        return np.concatenate([np.array([len(p) for p in parts], dtype=np.int64), *parts])
+        return pack_parts(t.pattern_state() for t in self._patterned())
 
     def restore(self, u, snapshot=None):
         """Put the terms whose blocks follow the converged state (follow_state) at u
@@ -64,13 +63,7 @@ class System:
         if snapshot is None:
             parts = [None] * len(terms)
         else:
-            data = np.asarray(snapshot, dtype=np.int64).ravel()
-            lens = data[:len(terms)]
-            if len(data) < len(terms) or np.any(lens < 0) \
-                    or len(terms) + lens.sum() != len(data):
-                raise ValueError(f"a pattern snapshot of {len(data)} numbers does not fit "
-                                 f"this system's {len(terms)} terms")
-            parts = np.split(data[len(terms):], np.cumsum(lens)[:-1]) if terms else []
+            parts = unpack_parts(snapshot, len(terms), "a pattern snapshot of this system")
         for t, part in zip(terms, parts):
             t.set_pattern_state(part)
         st = self.state(u)

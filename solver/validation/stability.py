@@ -246,7 +246,7 @@ def cases(full=False):
                     [(0.005, {"OOP": 1.0, "OOM": 1.0, "DLI": 1.0, "LLSAN": 1.0})] * n))
     # all ten muscles switched at random every communication step of 1 to 20 ms
     for seed in range(3):
-        n = 50 if full else 5
+        n = 50 if full else 3
         out.append(Case(f"switching_{seed}", f"all ten muscles switched to random levels "
                         f"every step, {n} steps of 1 to 20 ms (seed {seed})",
                         scene_dict(f"switching_{seed}", MUSCLE_NAMES),
@@ -269,7 +269,7 @@ def cases(full=False):
                         1.0 - math.cos(2.0 * math.pi * 10.0 * 0.005 * (k + 1)))})
                      for k in range(n)]))
     # rolled back and re-stepped at a contact-heavy point (lips pressed)
-    n, r = (10, 1000) if full else (2, 20)
+    n, r = (10, 1000) if full else (2, 5)
     out.append(Case("rollback_pressed", f"lips pressed (OOP + OOM at 1, {n * 5} ms), then "
                     f"the state restored and the last 5 ms step repeated {r} times",
                     scene_dict("rollback_pressed", ("OOP", "OOM")), [(0.005, press)] * n,

@@ -56,3 +56,20 @@ class Term:
 
     def commit(self, state):
         """Called once a load step (or time step) has converged at state."""
+
+
+def pack_parts(parts):
+    """(k,) int64: the integer arrays parts, each after its length (their count first):
+    how a pattern state of several blocks travels as one array (unpack_parts reads it)."""
+    parts = [np.asarray(p, dtype=np.int64).ravel() for p in parts]
+    return np.concatenate([np.array([len(p) for p in parts], dtype=np.int64), *parts])
+
+
+def unpack_parts(data, n, what):
+    """The n integer arrays that pack_parts wrote into data; ValueError naming `what` when
+    data cannot hold n of them."""
+    data = np.asarray(data, dtype=np.int64).ravel()
+    lens = data[:n]
+    if len(data) < n or np.any(lens < 0) or n + lens.sum() != len(data):
+        raise ValueError(f"{what}: {len(data)} numbers do not hold {n} packed arrays")
+    return np.split(data[n:], np.cumsum(lens)[:-1]) if n else []

@@ -158,7 +158,7 @@ from solver.core.kernels.contact import (extend_points, nearest, pair_distances,
                                          rigid_contact, signed_gaps, surface_contact,
                                          surface_normals)
 from solver.core.kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
-from solver.core.terms.base import Term
+from solver.core.terms.base import Term, pack_parts, unpack_parts
 
 PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
 TEETH_PENALTY = 2.0        # N/mm^3: lips and cheeks on the rigid teeth (BUC at 1 presses a
@@ -792,7 +792,7 @@ class LipContact(_Report, Term):
         keys = q["keys"]
         if self.follow and self.pattern_margin > 0:
             ptr, tri, _ = self._pairs(x, q["slaves"], q["slave_surface"], q["master"],
-                                      self.radius + self.pattern_margin, None,
+                                      self.radius + self.pattern_margin,
                                       facing_only=False)
             owner = np.repeat(np.arange(len(q["slaves"])), np.diff(ptr))
             keys = np.concatenate([keys, owner * len(self._quads[q["master"]])
@@ -802,8 +802,7 @@ class LipContact(_Report, Term):
     def pattern_state(self):
         """(k,) int64: the passes' pattern blocks (their lengths, then their keys), for
         set_pattern_state: a state restored with it gets back the pattern it had."""
-        keys = [q["block_keys"] for q in self.passes]
-        return np.concatenate([np.array([len(k) for k in keys], dtype=np.int64), *keys])
+        return pack_parts(q["block_keys"] for q in self.passes)
 
     def set_pattern_state(self, data):
         """The pattern blocks of pattern_state(), or None: new ones at the next
@@ -812,13 +811,7 @@ class LipContact(_Report, Term):
             for q in self.passes:
                 q["block_keys"], q["rows"] = None, None
             return
-        data = np.asarray(data, dtype=np.int64).ravel()
-        n = len(self.passes)
-        lens = data[:n]
-        if len(data) < n or np.any(lens < 0) or n + lens.sum() != len(data):
-            raise ValueError(f"{self.name}: a pattern state of {len(data)} numbers does not "
-                             f"hold {n} passes' blocks")
-        parts = np.split(data[n:], np.cumsum(lens)[:-1])
+        parts = unpack_parts(data, len(self.passes), f"{self.name}: a pattern state")
         for q, keys in zip(self.passes, parts):
             top = len(q["slaves"]) * len(self._quads[q["master"]])
             if len(keys) and (keys.min() < 0 or keys.max() >= top or np.any(np.diff(keys) <= 0)):
@@ -865,14 +858,14 @@ class LipContact(_Report, Term):
                         -np.ones(ns, dtype=np.int64))
         return gap
 
-    def _pairs(self, x, slaves, s, m, radius=None, max_pairs=None, facing_only=True):
+    def _pairs(self, x, slaves, s, m, radius=None, facing_only=True):
         """Candidate pairs at positions x (n + c, 3) of slaves (nodes of surface s) on the
         triangles of surface m: the max_pairs nearest within radius that the slave's
         surface faces and that the slave is not behind by more than depth; (ptr (s + 1,),
         pair triangles (p,), pair_free (p, 3)). facing_only False: every triangle within
-        radius, as many as there are unless max_pairs is given (the pattern block)."""
+        radius, with no count cap (the pattern block)."""
         radius = self.radius if radius is None else radius
-        max_pairs = self.max_pairs if facing_only and max_pairs is None else max_pairs
+        max_pairs = self.max_pairs if facing_only else None
         tris, fn = self.normals[m].tris, self.normals[m].fn
         cen = x[tris].mean(axis=1)
         reach = np.linalg.norm(x[tris] - cen[:, None], axis=2).max()
