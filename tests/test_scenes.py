@@ -93,8 +93,8 @@ def test_missing_scene_file_is_named(tmp_path):
 
 def _short_run(**effects):
     scene = parse_scene({"muscles": {"driven": ["OOP"]}, **effects,
-                         "scene": {"duration": 0.02},
-                         "outputs": {"interval": 0.01, "record": ["lip_protrusion"]},
+                         "scene": {"duration": 0.01},
+                         "outputs": {"interval": 0.005, "record": ["lip_protrusion"]},
                          "schedule": [{"muscle": "OOP", "kind": "step", "time": 0.0,
                                        "value": 0.8}]})
     sim = Simulation(scene)
