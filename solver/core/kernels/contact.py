@@ -787,6 +787,23 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
 
 
 @njit(cache=True)
+def min_facing(ptr, tri_ids, slave_fn, nodes, master_n, out):
+    """out (p,): the smallest slave_fn[f] . master_n[p] over the triangles f at node
+    nodes[p] (incidence lists ptr (n + 1,), tri_ids), inf for a node on none: negative
+    when a face of the slave surface at the node faces the master triangle of normal
+    master_n[p] (p, 3)."""
+    for p in range(nodes.shape[0]):
+        m = np.inf
+        for j in range(ptr[nodes[p]], ptr[nodes[p] + 1]):
+            f = tri_ids[j]
+            d = (slave_fn[f, 0] * master_n[p, 0] + slave_fn[f, 1] * master_n[p, 1]
+                 + slave_fn[f, 2] * master_n[p, 2])
+            if d < m:
+                m = d
+        out[p] = m
+
+
+@njit(cache=True)
 def pair_distances(xs, xv, tris, pair_tri, d2):
     """d2 (p,): squared distance of each point xs (p, 3) to its triangle pair_tri (p,)."""
     w = np.empty(3)

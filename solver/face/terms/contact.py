@@ -150,13 +150,15 @@ contact force on every mesh node (on the slaves and, for LipContact, on the mast
 master nodes (Newton's contact status prediction, solver.core.contact_update).
 """
 
+import itertools
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from solver.core.errors import ParameterError
-from solver.core.kernels.contact import (extend_points, nearest, pair_distances, rest_offsets,
-                                         rigid_contact, signed_gaps, surface_contact,
-                                         surface_normals)
+from solver.core.kernels.contact import (extend_points, min_facing, nearest, pair_distances,
+                                         rest_offsets, rigid_contact, signed_gaps,
+                                         surface_contact, surface_normals)
 from solver.core.kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from solver.core.terms.base import Term, pack_parts, unpack_parts
 
@@ -355,7 +357,8 @@ def _lists(tree, x, r):
     lists = tree.query_ball_point(x, r)
     ptr = np.zeros(len(x) + 1, dtype=np.int64)
     ptr[1:] = np.cumsum([len(c) for c in lists])
-    return ptr, np.fromiter((t for c in lists for t in c), dtype=np.int64, count=ptr[-1])
+    return ptr, np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64,
+                            count=ptr[-1])
 
 
 def _nearest_lists(xv, tris, x):
@@ -417,18 +420,6 @@ def _incidence(tris, n):
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(node, minlength=n), out=ptr[1:])
     return ptr, order // 3
-
-
-def _min_facing(ptr, tri_ids, slave_fn, nodes, master_n):
-    """(p,) the smallest n_f . master_n[p] over the slave surface's faces f at nodes[p]
-    (inf for a node on no face): negative when any face of the slave faces the master."""
-    out = np.full(len(nodes), np.inf)
-    count = ptr[nodes + 1] - ptr[nodes]
-    for k in range(int(count.max(initial=0))):
-        has = count > k
-        f = tri_ids[ptr[nodes[has]] + k]
-        out[has] = np.minimum(out[has], (slave_fn[f] * master_n[has]).sum(axis=1))
-    return out
 
 
 def _check(penalty, smoothing):
@@ -879,7 +870,8 @@ class LipContact(_Report, Term):
         if facing_only:
             ahead = ((x[slaves[si]] - x[tris[ti, 0]]) * fn[ti]).sum(axis=1)  # plane distance
             inc_p, inc_t = _incidence(st, len(x))
-            facing = _min_facing(inc_p, inc_t, sn, slaves[si], fn[ti])
+            facing = np.empty(len(ti))
+            min_facing(inc_p, inc_t, sn, slaves[si], fn[ti], facing)
             ok &= (facing < 0) & (ahead > -FACING_TOLERANCE - self.behind)
         order = np.lexsort((d2[ok], si[ok]))                  # by slave, nearest first
         si, ti = si[ok][order], ti[ok][order]
