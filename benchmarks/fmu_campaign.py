@@ -149,7 +149,8 @@ def main(argv=None):
     model = f"level {args.level!r}" if args.level else f"fidelity {args.fidelity!r}"
     probe = probe_for(fidelity, args.level)
     print(f"{len(todo)} random schedules of {args.duration} s (steps {SHORTEST * 1e3:g} to "
-          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, {model}, lip and teeth contact; seeds {args.seeds}", flush=True)
+          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, {model}, lip and teeth "
+          f"contact; seeds {args.seeds}", flush=True)
     failed, rows, t0 = {}, [], time.perf_counter()
     def run_batch(i):
         batch = todo[i:i + args.batch]
@@ -159,7 +160,8 @@ def main(argv=None):
         env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") \
             if args.jobs > 1 else None                 # one core per process
         proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), fidelity,
-                               args.level or "", str(jobs_path), str(base)], capture_output=True, text=True,
+                               args.level or "", str(jobs_path), str(base)],
+                              capture_output=True, text=True,
                               cwd=base, env=env)
         return jobs, proc
 
@@ -220,7 +222,8 @@ def write_doc(args, argv, todo, rows, failed, wall, tolerance):
              f"{SHORTEST * 1e3:g} and {LONGEST * 1e3:g} ms, each with new activations of all "
              f"ten muscles uniform in [0, 1]; the default scene at "
              + (f"mesh level `{args.level}` (half face)" if args.level else
-                f"fidelity `{args.fidelity}`") + ", lip and teeth contact on, through fmpy. A seed passes when "
+                f"fidelity `{args.fidelity}`") + ", lip and teeth contact on, through fmpy. "
+             "A seed passes when "
              "every doStep returns fmi2OK, the outputs stay finite with lip_aperture >= 0, "
              "the final state has no lip node inside the other lip and none behind the "
              f"teeth by more than {tolerance} mm (measured outside the model), and its "
