@@ -4,21 +4,23 @@ Shell-like structured blocks (n x n x 3 bricks, like the face's three tissue lay
 from about 1k to 60k DOF, and the reference face's own tangent (all muscles, OOP at 0.5),
 where ../shared/data/reference-face is present. Prints a table; with --csv PATH also writes it.
 
-    python benchmarks/solver_scaling.py [--sizes 10 20 40 70] [--csv out.csv]
+    python benchmarks/solver_scaling.py [--sizes 10 20 40 70] [--csv out.csv] [--md FILE]
 
 Times are the best of --repeat runs after a warm-up (numba compiled and cached); each
 linear solver's factorization and a solve on it are timed apart.
 """
 
 import argparse
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 
 import solver
 from solver.core.linsolve import available, make_solver
 from solver.core.meshgen import box
-from table import report
+from table import markdown, report
 
 
 def best_of(fn, repeat):
@@ -104,6 +106,8 @@ def main(argv=None):
     ap.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 40, 70])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--csv")
+    ap.add_argument("--md", help="also write the table as markdown there, with the command, "
+                                 "commit, date and machine (docs/generated/solver_scaling.md)")
     ap.add_argument("--no-face", action="store_true", help="skip the reference-face case")
     args = ap.parse_args(argv)
     rows = []
@@ -119,6 +123,16 @@ def main(argv=None):
                         for k, v in r.items()), flush=True)
     print()
     report(rows, csv_path=args.csv, missing="")
+    if args.md:
+        write_md(args.md, rows, argv)
+
+
+def write_md(path, rows, argv=None):
+    """rows as a markdown table at path, after a line naming the command that made it."""
+    from solver.app.provenance import command, stamp
+    head = (f"`{command('benchmarks/solver_scaling.py', argv)}` {stamp()}, "
+            f"{os.cpu_count()} cores:")
+    Path(path).write_text("\n".join([head, ""] + markdown(rows, missing="")) + "\n")
 
 
 if __name__ == "__main__":
