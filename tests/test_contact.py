@@ -891,3 +891,34 @@ def test_the_pattern_block_holds_the_followed_candidates_and_is_part_of_the_stat
     with pytest.raises(ValueError, match=term.name):
         term.set_pattern_state(at_u[1:] + 10 ** 6)
     assert np.array_equal(sysm.snapshot(), at_u)                 # left as it was
+
+
+def test_min_facing_is_the_smallest_normal_product_over_the_faces_at_each_node():
+    """solver.core.kernels.contact.min_facing against a direct loop: for each pair, the
+    smallest n_f . m over the slave surface's triangles f at the pair's node (inf for a
+    node on no triangle), on a random triangle soup."""
+    from solver.core.kernels.contact import min_facing
+    from solver.core.terms.base import pack_parts, unpack_parts
+    rng = np.random.default_rng(3)
+    n = 12
+    tris = rng.integers(0, n - 2, size=(15, 3))               # nodes n-2, n-1 on none
+    fn = rng.normal(size=(15, 3))
+    fn /= np.linalg.norm(fn, axis=1)[:, None]
+    order = np.argsort(tris.ravel(), kind="stable")
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(tris.ravel(), minlength=n), out=ptr[1:])
+    nodes = rng.integers(0, n, size=40)
+    master = rng.normal(size=(40, 3))
+    out = np.empty(40)
+    min_facing(ptr, order // 3, fn, nodes, master, out)
+    for p, v in enumerate(nodes):
+        faces = [f for f in range(15) if v in tris[f]]
+        expected = min((fn[f] @ master[p] for f in faces), default=np.inf)
+        assert out[p] == pytest.approx(expected, abs=1e-14), (p, v)
+    assert np.isinf(out[nodes >= n - 2]).all() and np.isfinite(out[nodes < n - 2]).any()
+    # the pattern state's packing round-trips and refuses what does not fit
+    parts = [np.array([3, 1]), np.array([], dtype=np.int64), np.array([7])]
+    back = unpack_parts(pack_parts(parts), 3, "test")
+    assert all(np.array_equal(a, b) for a, b in zip(parts, back))
+    with pytest.raises(ValueError, match="test"):
+        unpack_parts(pack_parts(parts)[:-1], 3, "test")
