@@ -191,7 +191,8 @@ def markdown(rows, command, notes, problems, wall):
              f"{S.HALVING_RELATIVE:.0%} of the case's largest lip-output excursion). fmu rows: the same case "
              "through the built FMU with fmpy; fmu_vs_solver_mm is the largest difference "
              f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; both use the "
-             f"scene's linear solver). Memory growth limit {S.MEMORY_LIMIT_MB} MB.", "",
+             f"scene's linear solver). Memory growth limit {S.MEMORY_LIMIT_MB} MB. pass n/a: "
+             "the case does not apply to its configuration (the notes say why).", "",
              " | ".join(KEYS), " | ".join("---" for _ in KEYS)]
     lines += [" | ".join(cell(r.get(k, "-")) for k in KEYS) for r in rows]
     if notes:
@@ -247,8 +248,15 @@ def main(argv=None):
         raise SystemExit(f"unknown case in {args.cases}; known: {known}")
     t0 = time.perf_counter()
     rows, problems, notes, fmu = [], {}, [], args.fmu_path
+    skipped = []
     for anatomy, level, fidelity in configs:
         selected = [S.configured(c, anatomy, level, fidelity) for c in base]
+        skipped += [c for c in selected if c.not_applicable]
+        rows += [{"case": c.name, "pass": "n/a", "contact": _contact(c)} for c in skipped
+                 if c in selected]
+        selected = [c for c in selected if not c.not_applicable]
+        if not selected:
+            continue
         solver_rows, runs, more = run_solver(selected, not args.no_halving)
         rows += solver_rows
         notes += more
@@ -262,12 +270,14 @@ def main(argv=None):
     print()
     report(rows, KEYS, csv_path=out / "stress.csv")
     command = "python benchmarks/stress.py " + " ".join(a for a in (argv or sys.argv[1:]))
+    notes += [f"{c.name} not run (n/a): {c.not_applicable}" for c in skipped]
     text = markdown(rows, command.strip(), notes, problems, wall)
     (out / "stress.md").write_text(text)
     if args.doc:
         Path(args.doc).write_text(text)
     failed = [k for k, v in problems.items() if v]
-    print(f"\n{len(rows) - len(failed)} of {len(rows)} passed in {wall / 60:.1f} min"
+    print(f"\n{len(rows) - len(failed) - len(skipped)} of {len(rows)} passed, "
+          f"{len(skipped)} not applicable, in {wall / 60:.1f} min"
           + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
 

@@ -106,6 +106,36 @@ def test_trust_check_fires_far_outside_the_training_range(trained):
     assert rom.outputs()["rom_fallbacks"] == 1                  # counted (an FMU output)
 
 
+def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatch):
+    """The reduced contact's deepest penetration (the kernels' gaps at the last force
+    evaluation) is the one measured outside the model (solver.validation.stability.Probe,
+    on the reconstructed displacement) to Newton's last update; past the contact
+    tolerance the step is redone by the full model, with a warning that names it."""
+    import solver.rom.simulation as rs
+    from solver.validation.stability import Probe
+    rom = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                          loaded_anatomy=trained["full"].anatomy)
+    probe = Probe(rom.anatomy)
+    rom.set_activations({"OOP": 1.0})
+    deepest = 0.0
+    for k in range(1, 7):                                       # lips pressed by OOP
+        assert rom.step(0.005 * k).converged and rom.mode == "rom"
+        lips, teeth = probe.penetrations(rom.u)
+        assert rom.stepper.penetration == pytest.approx(max(lips, teeth), abs=2e-3)
+        deepest = max(deepest, rom.stepper.penetration)
+    assert 0.0 < deepest < rs.TOLERANCE
+    monkeypatch.setattr(rs, "TOLERANCE", deepest / 2)          # the same run, a tighter limit
+    rom2 = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                           loaded_anatomy=trained["full"].anatomy)
+    rom2.set_activations({"OOP": 1.0})
+    with pytest.warns(rs.TrustWarning, match="contact penetration .* above the contact"):
+        for k in range(1, 7):
+            assert rom2.step(0.005 * k).converged
+            if rom2.mode == "full":
+                break
+    assert rom2.mode == "full" and rom2.outputs()["rom_fallbacks"] == 1
+
+
 def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
                                                                      monkeypatch):
     from solver.rom import ModelNotTrained

@@ -289,6 +289,25 @@ def test_halved_scene_halves_the_substep_controls():
     assert parse_scene(QUICK["bang_bang_20hz"].scene).hold == "step"
 
 
+def test_the_realtime_configuration_runs_the_shipped_model_at_halved_substeps():
+    """A case at fidelity realtime drives all ten muscles (the shipped model's key), a case
+    that scales a force is not applicable there, and its halved scene halves the reduced
+    model's substep."""
+    from solver.app.scene import parse_scene
+    from solver.entry import open_simulation
+    from solver.face.anatomy.base import MUSCLE_NAMES
+    from solver.rom.stepper import H_MAX
+    from solver.rom.store import find_model
+    on = S.configured(QUICK["pressed_released"], "generic", None, "realtime")
+    assert on.name == "pressed_released@realtime" and on.not_applicable is None
+    assert on.scene["muscles"]["driven"] == list(MUSCLE_NAMES)
+    find_model(parse_scene(on.scene))                   # shipped: no ModelNotTrained
+    assert "force scales" in S.configured(QUICK["refusal"], fidelity="realtime").not_applicable
+    assert S.configured(QUICK["refusal"], fidelity="fast").not_applicable is None
+    sims = [open_simulation(parse_scene(c.scene)) for c in (on, on.halved())]
+    assert [s.stepper.h_max for s in sims] == [H_MAX, H_MAX / 2]
+
+
 def test_case_scenes_round_trip_through_toml(tmp_path):
     from solver.app.scene import load_scene, parse_scene
     for case in QUICK.values():

@@ -210,6 +210,11 @@ class Simulation:
         if release:
             release()
 
+    @property
+    def u(self):
+        """(n, 3) the current displacements (mm)."""
+        return self.face.u
+
     def get_state(self):
         """Everything needed to resume: copies of arrays, plain floats."""
         v = self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)

@@ -50,6 +50,12 @@ from solver.rom.contact_kernels import (fill_positions, mirror_normals, project_
 from solver.rom.online_kernels import project_nodal
 
 
+def _deepest(gap):
+    """-min(gap) over the finite gaps, 0 where none is negative."""
+    g = gap[np.isfinite(gap)]
+    return float(max(0.0, -g.min())) if g.size else 0.0
+
+
 class _Rigid:
     def __init__(self, term, Vn, delta):
         self.term, self.delta = term, float(delta)
@@ -131,6 +137,10 @@ class _Rigid:
         return project_slaves(self.Vs, self.fe, self.ke, self.gap, self.force, need_k, fr,
                               kr, self.kv)
 
+    def penetration(self):
+        """The deepest penetration (mm, >= 0) of the last evaluation's slaves."""
+        return _deepest(self.gap)
+
     def tangent(self, kr):
         """kr += the reduced tangent of the last evaluation."""
         project_slaves(self.Vs, self.fe, self.ke, self.gap, self.force, True, self._f0,
@@ -188,6 +198,10 @@ class _Lip:
                                  fr, kr, self.kv)
             total, sig = total + f, sig * 1000003 + h
         return total, sig
+
+    def penetration(self):
+        """The deepest penetration (mm, >= 0) of the last evaluation's slaves, both passes."""
+        return max(_deepest(w["gap"]) for w in self.passes)
 
     def tangent(self, kr):
         """kr += the reduced tangent of the last evaluation."""
@@ -295,6 +309,13 @@ class ReducedContact:
     def fast(self):
         """True where every term has a fast adapter."""
         return not any(isinstance(a, _Generic) for a in self.adapters)
+
+    @property
+    def penetration(self):
+        """The deepest lip/lip or lip/teeth penetration (mm) of the last evaluate(), as the
+        terms' kernels measure it (the generic path's terms: not measured, 0)."""
+        return max((a.penetration() for a in self.adapters if hasattr(a, "penetration")),
+                   default=0.0)
 
     def tangent(self, i):
         """(r, r) the tangent of term i at the state of the last evaluate() (a new array;

@@ -33,7 +33,10 @@ envelope: a TrustWarning naming it, and the full model from then on (trust "fall
 
 Trust check (solver.rom.trust): every `check_every` substeps, the full-order residual of
 the reduced solution u = V q + L on the free DOFs, with inertia and damping, relative to the
-force scale max(|f_tissue|, |f_cables|, 1e-3 N): rho = |R_free(V q)| / scale.
+force scale max(|f_tissue|, |f_cables|, 1e-3 N): rho = |R_free(V q)| / scale. And after
+every step, the contact's deepest penetration at its last force evaluation (the terms'
+own gap measure): beyond the contact tolerance (solver.face.terms.contact.TOLERANCE) the
+basis cannot hold the contact the full model would, which the residual may not show.
 
 rho above the model's trust threshold (calibrated in training: a multiple of the largest
 rho met on training patterns) means the state has left the span the model was trained
@@ -53,8 +56,9 @@ from solver.app.simulation import Simulation, resolve_scene
 from solver.core.transient import StepStats
 from solver.core.units import kg_per_m3
 from solver.face.jaw import JAW_INPUTS, JAW_UNITS
+from solver.face.terms.contact import TOLERANCE
 from solver.rom.reduced import ReducedOperator
-from solver.rom.stepper import METHODS, Stepper
+from solver.rom.stepper import H_MAX, METHODS, Stepper
 from solver.rom.store import ModelNotTrained, find_model, load_model, model_path
 from solver.rom.outputs import LipOutputs
 from solver.rom.trust import TrustCheck
@@ -71,7 +75,8 @@ class ReducedSimulation(Simulation):
     (arrays, meta) pair: use this model whatever the scene's key), rom_dirs (folders
     searched for the scene's model before the user cache, e.g. an FMU's resources),
     rom_train (train on demand when no model is found), trust ('fallback' | 'warn' |
-    'off'), check_every (substeps between trust checks), h (largest substep, s), utol,
+    'off'), check_every (substeps between trust checks), h (largest substep, s; None:
+    H_MAX, or the scene's max_substep where that is smaller), utol,
     max_iter; method 'fast' (default) or 'reference' with its own knobs (refresh; rate,
     contact_delta, max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant)
     or 'current' (K_n by the cubature on the shape at the start of each substep; the
@@ -80,7 +85,7 @@ class ReducedSimulation(Simulation):
 
     def __init__(self, scene="default", loaded_anatomy=None, fidelity=None,
                  rom_model=None, rom_dirs=(), rom_train=False, trust="fallback",
-                 check_every=100, h=1e-3, refresh=4, utol=1e-2, max_iter=20,
+                 check_every=100, h=None, refresh=4, utol=1e-2, max_iter=20,
                  damping="current", damping_refresh=5, method="fast", rate=0.8,
                  contact_delta=0.5, max_frozen=6, kb_every=50, warmup=True, **overrides):
         if damping not in ("rest", "current"):
@@ -117,6 +122,7 @@ class ReducedSimulation(Simulation):
             arrays, meta = load_model(rom_model)
         self.rom_meta = meta
         self.trust, self.check_every = trust, int(check_every)
+        h = min(H_MAX, sc.max_substep) if h is None else h
         self.h_max, self.utol, self.max_iter = h, utol, max_iter
         self.trust_threshold = float(arrays["trust_threshold"][0])
         V = arrays["V"]
@@ -197,9 +203,12 @@ class ReducedSimulation(Simulation):
                 > start[3] // self.check_every:
             rho = self.trust_residual()
             self.trust_history.append((float(t_end), rho))
-        bad = not ok or (rho is not None and rho > self.trust_threshold)
+        pen = self.stepper.penetration if ok and self.trust != "off" else 0.0
+        bad = not ok or (rho is not None and rho > self.trust_threshold) or pen > TOLERANCE
         if bad:
             what = (f"reduced step failed ({stats.reason})" if not ok else
+                    f"contact penetration {pen:.3g} mm above the contact tolerance "
+                    f"{TOLERANCE} mm" if pen > TOLERANCE else
                     f"full-order residual of the reduced state {rho:.3g} (relative) above "
                     f"the trust threshold {self.trust_threshold:.3g}")
             if self.trust == "fallback":

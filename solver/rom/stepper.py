@@ -53,6 +53,7 @@ import scipy.linalg as sla
 from solver.rom.online import OnlineOperator
 
 METHODS = ("fast", "reference")
+H_MAX = 1e-3        # s: the largest reduced substep, unless the scene asks for a smaller one
 
 
 class Stepper:
@@ -61,7 +62,7 @@ class Stepper:
     alpha, beta: damping constants (0 without damping); damping: 'rest' | 'current'."""
 
     def __init__(self, op, M_r, alpha, beta, damping="current", damping_refresh=5,
-                 h_max=1e-3, utol=1e-4, max_iter=20, method="fast", refresh=4, rate=0.8,
+                 h_max=H_MAX, utol=1e-4, max_iter=20, method="fast", refresh=4, rate=0.8,
                  contact_delta=0.2, max_frozen=6, kb_every=50):
         self.op, self.M_r, self.alpha, self.beta = op, op.M_r, alpha, beta
         self.M_damp = M_r
@@ -91,6 +92,12 @@ class Stepper:
         if self.online is not None:
             self.online.a = None
             self.online.contact.reset()
+
+    @property
+    def penetration(self):
+        """The deepest contact penetration (mm) of the last force evaluation (0 on the
+        reference method, which does not measure it)."""
+        return self.online.contact.penetration if self.online is not None else 0.0
 
     @property
     def contact_force(self):

@@ -59,9 +59,12 @@ from solver.core.assembly import Assembly, Pattern
 from solver.face.face_model import LIP_OUTPUTS
 from solver.face.jaw import BONWILL_MM
 from solver.app.scene import parse_scene
+from solver.face.terms.contact import TOLERANCE
+from solver.app.fidelity import REDUCED
+from solver.rom.stepper import H_MAX
 from solver.core.terms.base import State
 
-CONTACT_TOLERANCE = 0.05    # mm: penalty contact's allowed penetration (solver/face/terms/contact.py)
+CONTACT_TOLERANCE = TOLERANCE  # mm: penalty contact's allowed penetration
 HALVING_TOLERANCE = 0.05    # mm: largest change of a lip output when every substep is halved,
 HALVING_RELATIVE = 0.02     # plus this fraction of the largest excursion of the lip outputs
 MEMORY_LIMIT_MB = 50.0      # resident memory growth allowed over a long run
@@ -82,7 +85,8 @@ class Case:
     lip-output distance to the static equilibrium at the last activations, at ten
     checkpoints: it must never grow (no drift) and end within EQUILIBRIUM_TOLERANCE;
     rollback: after the steps, restore the state this many times and repeat the last step:
-    every repeat must give the same outputs, bit for bit (an FMU master's rollback)."""
+    every repeat must give the same outputs, bit for bit (an FMU master's rollback);
+    not_applicable: why the case does not run on its configuration (None: it runs)."""
 
     name: str
     description: str
@@ -95,6 +99,7 @@ class Case:
     equilibrium: bool = False
     halving_time: float = None
     rollback: int = 0
+    not_applicable: str = None
 
     @property
     def duration(self):
@@ -124,8 +129,18 @@ def configured(case, anatomy="generic", level=None, fidelity=None):
     """The case on another configuration: anatomy ("generic" or an ANSYS face folder),
     level (the generic face's; None: the case's, or the fidelity's where one is given) and
     fidelity (a preset of solver.app.fidelity, as a scene file's `fidelity`; None: the case's
-    own tolerances). The name says which."""
+    own tolerances). The name says which.
+
+    "realtime" opens the shipped reduced model (solver.rom.store), whose key is the default
+    scene's: the case then drives all ten muscles (those it does not name stay at 0), and a
+    case that scales a muscle's force is outside every such model (not_applicable says so)."""
     scene = {k: dict(v) for k, v in case.scene.items()}
+    skip = None
+    if fidelity in REDUCED:
+        scene["muscles"]["driven"] = list(MUSCLE_NAMES)
+        if scene["muscles"].get("force_scale"):
+            skip = (f"its force scales {scene['muscles']['force_scale']} are outside the "
+                    "shipped reduced model, which has the default scene's constants")
     tags = []
     if str(anatomy) != "generic":
         scene["anatomy"] = {"source": str(anatomy), "half": True}
@@ -140,7 +155,8 @@ def configured(case, anatomy="generic", level=None, fidelity=None):
         tags.append(fidelity)
     if not tags:
         return case
-    return replace(case, name=f"{case.name}@{'+'.join(tags)}", scene=scene)
+    return replace(case, name=f"{case.name}@{'+'.join(tags)}", scene=scene,
+                   not_applicable=skip)
 
 
 def _ramp(t, t_full, value):
@@ -287,11 +303,12 @@ def cases(full=False):
 
 def halved(scene, step=np.inf):
     """The scene's TOML sections with every substep halved (see the module docstring);
-    step: the smallest communication step, which also bounds the substeps."""
+    step: the smallest communication step, which also bounds the substeps. A reduced
+    model's substep (solver.rom.stepper.H_MAX, or the scene's max_substep) is halved too."""
     sc = parse_scene(scene)
     out = {k: dict(v) for k, v in scene.items()}
     out.setdefault("solver", {})
-    largest = min(sc.max_substep, step) / 2
+    largest = min(sc.max_substep, step, H_MAX if sc.fidelity in REDUCED else np.inf) / 2
     out["solver"]["substep_tol"] = sc.substep_tol / 4
     out["solver"]["max_substep"] = largest
     out["solver"]["min_substep"] = min(sc.min_substep, largest)
@@ -520,8 +537,8 @@ def output_bounds(anatomy):
 
 def check_state(sim, probe=None, bounds=None):
     """Invariants of a simulation's current state: (measures dict, problems list)."""
-    u = sim.face.u
-    v = sim.integrator.v if sim.integrator is not None else np.zeros_like(u)
+    u = sim.u                                   # a reduced model's, reconstructed
+    v = sim.get_state().get("v", np.zeros_like(u))
     problems = []
     finite = bool(np.all(np.isfinite(u)) and np.all(np.isfinite(v)))
     out = sim.outputs()
@@ -602,7 +619,7 @@ def _unchanged(sim, snap):
     (st, dissipated) = snap
     now, d = _snapshot(sim)
     return (now["t"] == st["t"] and d == dissipated
-            and all(np.array_equal(now[k], st[k]) for k in ("u", "v", "activation", "pattern")
+            and all(np.array_equal(now[k], st[k]) for k in ("u", "v", "q", "v_r", "activation", "pattern")
                     if k in st))
 
 
@@ -705,7 +722,7 @@ def run_case(case, progress=None, probe=True):
     elif case.refused and run.steps == n - len(case.refused):
         _check_replay(case, run)
     if case.rest:
-        moved = float(np.abs(sim.face.u).max())
+        moved = float(np.abs(sim.u).max())
         if not moved < REST_TOLERANCE:
             run.problem(None, f"at rest the face moved by {moved:.3g} mm")
     if case.memory and mem0 is not None:

@@ -166,6 +166,7 @@ PENALTY = 1.0              # N/mm^3: contact pressure per mm of penetration
 TEETH_PENALTY = 2.0        # N/mm^3: lips and cheeks on the rigid teeth (BUC at 1 presses a
                            # cheek node of 5 mm^2 with 0.35 N: 0.035 mm deep)
 EDGE_FADE = 1.0            # mm: lip contact fades out over this distance beyond a free edge
+TOLERANCE = 0.05           # mm: the deepest penetration the penalty is meant to allow (checks)
 FACING_TOLERANCE = 1e-6    # mm: a slave this far behind a master triangle's plane still faces it
 
 
