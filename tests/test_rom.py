@@ -106,6 +106,28 @@ def test_trust_check_fires_far_outside_the_training_range(trained):
     assert rom.outputs()["rom_fallbacks"] == 1                  # counted (an FMU output)
 
 
+def test_a_look_at_the_state_leaves_the_run_as_it_was(trained):
+    """get_state(fresh=False) (the stress checks' look) changes nothing: the run equals
+    one without it, bit for bit; get_state() drops the stepper's caches (so that a step
+    repeats exactly after set_state), which changes the Newton path."""
+    def run(look):
+        rom = open_simulation(trained["scene"], fidelity="realtime",
+                              rom_model=trained["path"],
+                              loaded_anatomy=trained["full"].anatomy)
+        rom.set_activations({"OOP": 1.0, "RIS": 0.5})
+        iterations = 0
+        for k in range(1, 9):
+            if look is not None:
+                rom.get_state(fresh=look)
+            iterations += rom.step(0.002 * k).newton_iterations
+        return rom.u.copy(), iterations
+    plain, n_plain = run(None)
+    looked, n_looked = run(False)
+    assert np.array_equal(plain, looked) and n_plain == n_looked
+    fresh, n_fresh = run(True)
+    assert n_fresh != n_plain or not np.array_equal(fresh, plain)
+
+
 def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatch):
     """The reduced contact's deepest penetration (the kernels' gaps at the last force
     evaluation) is the one measured outside the model (solver.validation.stability.Probe,

@@ -280,10 +280,11 @@ class ReducedSimulation(Simulation):
         return self.face.u if self.mode == "full" else self.op.displacement(self.q,
                                                                              self._lift())
 
-    def get_state(self):
+    def get_state(self, fresh=True):
         if self.mode == "full":
-            return {**super().get_state(), "mode": "full", "fallbacks": self.fallbacks}
-        self.stepper.reset_caches()          # the next step starts afresh, as after set_state
+            return {**super().get_state(fresh), "mode": "full", "fallbacks": self.fallbacks}
+        if fresh:
+            self.stepper.reset_caches()      # the next step starts afresh, as after set_state
         L = self._lift()
         return {"t": self.t, "u": self.op.displacement(self.q, L).copy(),
                 "v": self.op.displacement(self.v_r, 0.0 * L).copy(),

@@ -538,7 +538,7 @@ def output_bounds(anatomy):
 def check_state(sim, probe=None, bounds=None):
     """Invariants of a simulation's current state: (measures dict, problems list)."""
     u = sim.u                                   # a reduced model's, reconstructed
-    v = sim.get_state().get("v", np.zeros_like(u))
+    v = sim.get_state(fresh=False).get("v", np.zeros_like(u))
     problems = []
     finite = bool(np.all(np.isfinite(u)) and np.all(np.isfinite(v)))
     out = sim.outputs()
@@ -611,7 +611,7 @@ class CaseRun:
 
 
 def _snapshot(sim):
-    st = sim.get_state()
+    st = sim.get_state(fresh=False)             # a look that leaves the run as it was
     return st, sim.integrator.dissipated if sim.integrator is not None else 0.0
 
 
