@@ -164,18 +164,21 @@ def run_fmu(selected, runs, out, notes, fmu=None):
     return rows, problems
 
 
-def markdown(rows, command, notes, problems, wall):
+def markdown(rows, command, notes, problems, wall, part=None):
+    """The report; part: a heading (level 2) for a report that a page includes, which then
+    leaves out the legend (the page explains the columns)."""
     def cell(v):
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3g}"
         return str(v)
-    lines = ["# Stability: the hard cases", "",
+    lines = [f"## {part}" if part else "# Stability: the hard cases", "",
              f"Made by `{command}` at commit {commit()} on "
              f"{datetime.date.today().isoformat()}, {platform.machine()} "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
              "had other work). Cases and checks: `solver/validation/stability.py`; "
-             "the quick versions run in CI (`tests/test_stability.py`).", "",
+             "the quick versions run in CI (`tests/test_stability.py`).", ""]
+    legend = [
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "
              "the smallest over all steps); lip outputs within bounds (aperture >= 0); "
              "dissipated energy never decreasing; statistics reported (cutbacks: total and "
@@ -192,8 +195,9 @@ def markdown(rows, command, notes, problems, wall):
              "through the built FMU with fmpy; fmu_vs_solver_mm is the largest difference "
              f"from the run in this process (limit {S.FMU_MATCH_TOLERANCE} mm; both use the "
              f"scene's linear solver). Memory growth limit {S.MEMORY_LIMIT_MB} MB. pass n/a: "
-             "the case does not apply to its configuration (the notes say why).", "",
-             " | ".join(KEYS), " | ".join("---" for _ in KEYS)]
+             "the case does not apply to its configuration (the notes say why).", ""]
+    lines += [] if part else legend
+    lines += [" | ".join(KEYS), " | ".join("---" for _ in KEYS)]
     lines += [" | ".join(cell(r.get(k, "-")) for k in KEYS) for r in rows]
     if notes:
         lines += ["", "Notes:", ""] + [f"* {n}" for n in notes]
@@ -224,6 +228,9 @@ def main(argv=None):
     ap.add_argument("--config", nargs="+", choices=[*CONFIGURATIONS, "all"],
                     help="named configurations, one report (overrides --anatomy, --level "
                     "and --fidelity)")
+    ap.add_argument("--part", metavar="HEADING",
+                    help="write the report as a part of a page that includes it: this "
+                    "level-2 heading, no legend")
     args = ap.parse_args(argv)
     reference = str(ROOT.parent / "shared" / "data" / "reference-face")
     if args.anatomy == "reference":
@@ -271,7 +278,7 @@ def main(argv=None):
     report(rows, KEYS, csv_path=out / "stress.csv")
     command = "python benchmarks/stress.py " + " ".join(a for a in (argv or sys.argv[1:]))
     notes += [f"{c.name} not run (n/a): {c.not_applicable}" for c in skipped]
-    text = markdown(rows, command.strip(), notes, problems, wall)
+    text = markdown(rows, command.strip(), notes, problems, wall, args.part)
     (out / "stress.md").write_text(text)
     if args.doc:
         Path(args.doc).write_text(text)
