@@ -13,9 +13,10 @@ the report to OUT only, unless --doc names a file. --anatomy, --level and --fide
 every case on another configuration (solver.validation.stability.configured: the reference face, the
 generic face's paper level, a preset's mesh and tolerances); its rows are named
 CASE@CONFIGURATION. --config runs the cases on several named configurations in one report
-(CONFIGURATIONS below; `--config all`: every one):
+(CONFIGURATIONS below; `--config all`: every one). --part HEADING writes a report that a
+page includes; docs/stability_configurations.md includes one per configuration:
 
-    python benchmarks/stress.py --quick --config all --doc docs/stability_configurations.md
+    python benchmarks/stress.py --quick --config paper --part paper --doc docs/generated/stability_paper.md
 
 Writes OUT/stress.csv and OUT/stress.md; exits with 1 when a case fails.
 
