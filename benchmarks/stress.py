@@ -259,9 +259,9 @@ def main(argv=None):
     skipped = []
     for anatomy, level, fidelity in configs:
         selected = [S.configured(c, anatomy, level, fidelity) for c in base]
-        skipped += [c for c in selected if c.not_applicable]
-        rows += [{"case": c.name, "pass": "n/a", "contact": _contact(c)} for c in skipped
-                 if c in selected]
+        na = [c for c in selected if c.not_applicable]
+        skipped += na
+        rows += [{"case": c.name, "pass": "n/a", "contact": _contact(c)} for c in na]
         selected = [c for c in selected if not c.not_applicable]
         if not selected:
             continue
