@@ -753,6 +753,7 @@ def test_face_lips_on_teeth_under_oop(face_anatomy):
     assert with_teeth["lip_protrusion"] > without["lip_protrusion"] + 0.2
 
 
+@pytest.mark.slow       # 50 s; the fade it relies on: test_penalty_fades_continuously_...
 def test_face_oop_buc_passes_the_teeth_rim_in_one_load_step(face_anatomy):
     """The paper's static OOP + BUC on the full reference face in one load step: a lip node
     passes a free edge of a teeth sheet near lam = 0.48. Released there (fade 0) its force

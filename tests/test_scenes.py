@@ -46,7 +46,7 @@ def test_the_default_is_the_papers_model_for_speech():
     sim = Simulation()
     assert {"upper_teeth+lower_teeth_contact", "lip_contact", "inertia", "damping"} <= set(
         sim.term_names)
-    assert Simulation("no_contact").scene.contact_warnings() == [
+    assert resolve_scene("no_contact").contact_warnings() == [
         "scene 'no_contact' leaves out lip/lip and lip/teeth contact: lips and teeth can "
         "interpenetrate"]
 
