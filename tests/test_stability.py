@@ -5,7 +5,8 @@ For every case: no NaN or inf, no inverted brick (det F > 0 at every Gauss point
 within the contact tolerance where contact is on, outputs within bounds (aperture >= 0),
 dissipated energy never decreasing, statistics (cutbacks) reported; a step that cannot be
 taken is refused with the state unchanged. Halving every substep changes the outputs by
-less than halving_limit (0.05 mm + 2 % of the motion). The same cases through the built
+less than halving_limit (0.05 mm + 2 % of the motion at the default substep
+tolerance; sqrt(tol / 1e-3) times the 0.05 mm at a looser one). The same cases through the built
 FMU give the same outputs.
 The checks themselves are shown to catch broken states.
 """
@@ -19,6 +20,7 @@ from hypothesis import strategies as st
 
 from solver.validation import stability as S
 from solver.face.anatomy.base import MUSCLE_NAMES
+from solver.face.face_model import LIP_OUTPUTS
 from solver.app.simulation import Simulation
 from solver.core.transient import StepStats
 from conftest import SCRIPTS
@@ -61,7 +63,19 @@ def test_halving_every_substep_changes_the_outputs_little():
     assert half.passed, _explain(half)
     assert 1.6 < half.substeps / run.substeps < 2.6            # the substeps did halve
     change = S.halving_change(run, half)
+    assert run.substep_tol == 1e-3                  # the case's scene: the default tolerance
     assert 0 < change <= S.halving_limit(run)
+
+
+def test_the_halving_limit_grows_as_the_square_root_of_the_substep_tolerance():
+    """0.05 mm + 2 % of the excursion at the default tolerance and below, sqrt(tol / 1e-3)
+    times the 0.05 mm above it; a reduced run (no adaptive tolerance) gets the constant."""
+    run = S.CaseRun("x", start={k: 0.0 for k in LIP_OUTPUTS},
+                    rows=[{k: (2.0 if k == "lip_aperture" else 0.0) for k in LIP_OUTPUTS}])
+    for tol, expected in ((None, 0.05), (1e-4, 0.05), (1e-3, 0.05), (4e-3, 0.1),
+                          (5e-2, 0.05 * 50 ** 0.5)):
+        run.substep_tol = tol
+        assert S.halving_limit(run) == pytest.approx(expected + 0.02 * 2.0, rel=1e-12)
 
 
 def test_quick_cases_through_the_fmu(fmu, tmp_path):

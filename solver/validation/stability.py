@@ -43,6 +43,12 @@ must then change by less than ``halving_limit(run)``: HALVING_TOLERANCE plus
 HALVING_RELATIVE of the largest lip-output excursion from the start of the case (the
 substep controller bounds each substep's local error, so the global error grows with
 the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
+HALVING_TOLERANCE is set for the default substep tolerance (HALVING_AT, 1e-3 mm); a
+scene with a looser one (the balanced and fast presets: 5e-2 mm) is held to
+HALVING_TOLERANCE sqrt(tol / HALVING_AT): the controller keeps the local error
+~ c h^2 at tol, so its substeps are h ~ sqrt(tol / c), and backward Euler's global
+error, first order in h, grows as sqrt(tol). A reduced run (fixed substeps) is held to
+HALVING_TOLERANCE.
 """
 
 import math
@@ -67,6 +73,7 @@ from solver.core.terms.base import State
 CONTACT_TOLERANCE = TOLERANCE  # mm: penalty contact's allowed penetration
 HALVING_TOLERANCE = 0.05    # mm: largest change of a lip output when every substep is halved,
 HALVING_RELATIVE = 0.02     # plus this fraction of the largest excursion of the lip outputs
+HALVING_AT = 1e-3           # mm: the substep tolerance HALVING_TOLERANCE is for (the default)
 MEMORY_LIMIT_MB = 50.0      # resident memory growth allowed over a long run
 REST_TOLERANCE = 1e-9       # mm: at rest nothing moves
 EQUILIBRIUM_TOLERANCE = 0.01    # mm: a held activation ends this close to the static state
@@ -599,6 +606,7 @@ class CaseRun:
     equilibrium_distances: list = field(default_factory=list)
     rollbacks: int = 0                               # repeats of the rolled-back step
     start: dict = field(default_factory=dict)        # lip outputs before the first step
+    substep_tol: float = None                        # mm: the adaptive stepper's (None: fixed)
     wall: float = 0.0
 
     @property
@@ -642,7 +650,10 @@ def run_case(case, progress=None, probe=True):
     from solver.entry import open_simulation
     t_start = time.perf_counter()
     run = CaseRun(case.name)
-    sim = open_simulation(parse_scene(case.scene, f"<case {case.name}>"))
+    scene = parse_scene(case.scene, f"<case {case.name}>")
+    sim = open_simulation(scene)
+    if scene.fidelity not in REDUCED:
+        run.substep_tol = float(scene.substep_tol)
     pr = Probe(sim.anatomy, jaw=sim.face.jaw) if probe else None
     bounds = output_bounds(sim.anatomy)
     n = len(case.steps)
@@ -783,10 +794,13 @@ def halving_change(run, half):
 
 
 def halving_limit(run):
-    """The largest lip-output change (mm) allowed when the substeps of run are halved."""
+    """The largest lip-output change (mm) allowed when the substeps of run are halved:
+    HALVING_TOLERANCE sqrt(max(1, tol / HALVING_AT)), tol the run's substep tolerance (1
+    for a reduced run), plus HALVING_RELATIVE of the largest excursion (module docstring)."""
     excursion = max((abs(r[k] - run.start[k]) for r in run.rows for k in LIP_OUTPUTS),
                     default=0.0)
-    return HALVING_TOLERANCE + HALVING_RELATIVE * excursion
+    scale = math.sqrt(max(1.0, run.substep_tol / HALVING_AT)) if run.substep_tol else 1.0
+    return HALVING_TOLERANCE * scale + HALVING_RELATIVE * excursion
 
 
 def max_change(rows_a, rows_b, keys=LIP_OUTPUTS):
