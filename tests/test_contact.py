@@ -204,6 +204,41 @@ def test_subdivided_faces_share_their_edge_midpoints():
     assert topo.free_edge.sum() == 2 * 7
 
 
+def test_partial_normal_updates_equal_the_whole_one(rng):
+    """_Normals.changed(moved): after a motion of the vertices `moved` only, its update
+    leaves every row (face, edge, vertex normals) as the whole update does, bit for bit;
+    _Normals.read(tris): after a motion of every vertex, the rows of those triangles (their
+    faces, edges and vertices) are the whole update's. On a curved sheet with a mirror
+    plane (x = -2: a half model's), whose rows are renormalised too."""
+    from solver.face.terms.contact import _Normals
+    s = grid_surface(8, 4.0, height=lambda x, y: 0.2 * x * x - 0.1 * x * y)
+    tris, x0 = np.asarray(s.triangles), np.asarray(s.vertices, dtype=float)
+    x0 = x0 - [x0[:, 0].min(), 0.0, 0.0]                 # the plane x = 0 on an edge
+    mirror = np.isclose(x0[:, 0], 0.0)
+    moved = (x0[:, 0] > 2.2) & (x0[:, 1] < 0.5)
+    x1 = x0.copy()
+    x1[moved] += 0.3 * rng.standard_normal((moved.sum(), 3))
+    whole = _Normals(tris, len(x0), mirror).update(x1)
+    part = _Normals(tris, len(x0), mirror).update(x0)
+    assert not np.array_equal(part.fn, whole.fn)
+    rows = part.changed(moved)
+    assert 0 < len(rows.rows[0]) < len(tris)               # a part, not all of it
+    part.update(x1, rows)
+    for a, b in zip(part.args()[:3], whole.args()[:3]):
+        assert np.array_equal(a, b)
+    x2 = x0 + 0.2 * rng.standard_normal(x0.shape)
+    x2[mirror, 0] = 0.0
+    whole.update(x2)
+    read = part.read(np.array([0, 5, 7, 64]))
+    part.update(x2, read)
+    faces, _, verts, _, edges = read.rows
+    assert np.isin([0, 5, 7, 64], edges).all() and mirror[verts].any()
+    assert np.array_equal(part.fn[faces], whole.fn[faces])
+    assert np.array_equal(part.en[edges], whole.en[edges])
+    assert np.array_equal(part.vn[verts], whole.vn[verts])
+    assert not np.array_equal(part.fn, whole.fn)           # the other rows were left
+
+
 def test_setting_the_penalty_scales_every_contact_force(rng):
     """The penalty knob (benchmarks/fast_path.py --set contact.penalty=P) rescales the
     stiffness of every slave, in both passes of the lips; the gaps stay."""

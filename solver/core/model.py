@@ -96,8 +96,9 @@ class Model:
         if not np.all(np.isfinite(disp)):
             raise ParameterError("prescribed displacement has a non-finite value")
         dofs = (3 * ids[:, None] + comps[None, :]).ravel()
-        new = any(d not in self._target for d in dofs.tolist())
-        self._target.update(zip(dofs.tolist(), disp[:, comps].ravel().tolist()))
+        keys = dofs.tolist()
+        new = not self._target.keys() >= set(keys)
+        self._target.update(zip(keys, disp[:, comps].ravel().tolist()))
         if new and self._system is not None:     # the set of prescribed DOFs changed
             self._reconstrain()
 

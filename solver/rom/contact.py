@@ -18,11 +18,14 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   triangle, hence the same gap and force, as the term (a slave with d_i - delta above the
   contact depth gets an empty list: out of contact either way). The lists are rebuilt
   (one brute-force numba pass over the triangles) when a slave has moved more than delta
-  (0.5 mm in solver.rom.simulation). Slaves are not skipped by distance: beyond a free
+  (0.5 mm in solver.rom.simulation; at least MOVING_DELTA on a surface that follows the
+  jaw, whose motion counts against it too). Slaves are not skipped by distance: beyond a free
   edge the term's penalty is not a function of the distance alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
-  refreshed by the term's own normals object; private copies of the pair work arrays.
+  refreshed in the term's own normals object on the rows the kernel reads (the candidate
+  triangles' faces, edges and vertices: _Normals.read); private copies of the pair work
+  arrays.
 * anything else: the term's assemble() on a full-size displacement filled at the
   contact nodes only (the generic, slower path; solver.rom.reduced does the same).
 
@@ -42,10 +45,11 @@ tests/test_rom_online.py checks the adapters against the terms' assemble().
 import numpy as np
 
 from solver.core.assembly import block_dofs
-from solver.core.kernels.contact import rigid_contact, surface_contact, surface_normals
+from solver.core.kernels.contact import rigid_contact, surface_contact, surface_normals_part
 from solver.core.terms.base import State
 from solver.face.terms.contact import pair_maps
-from solver.rom.contact_kernels import (fill_positions, mirror_normals, project_pairs,
+from solver.rom.contact_kernels import (centroids_radii, fill_positions, mirror_normals,
+                                        project_pairs,
                                         project_slaves, short_lists, slave_positions)
 from solver.rom.online_kernels import project_nodal
 
@@ -56,17 +60,23 @@ def _deepest(gap):
     return float(max(0.0, -g.min())) if g.size else 0.0
 
 
+MOVING_DELTA = 1.0   # mm: the least delta of lists on a surface that follows the jaw
+
+
 class _Rigid:
     def __init__(self, term, Vn, delta):
         self.term, self.delta = term, float(delta)
+        if term.motion is not None:
+            # the surface's own motion spends the margin too (|d theta| R + |d p|, R about
+            # 100 mm): longer lists cost less than rebuilding them every few substeps
+            self.delta = max(self.delta, MOVING_DELTA)
         self.slaves = np.asarray(term.slaves, dtype=np.int64)
         s = len(self.slaves)
         self.X = np.ascontiguousarray(term.x0)              # rest positions, offsets in
         self.Vs = np.ascontiguousarray(Vn[self.slaves])                    # (s, 3, r)
-        xv, tris = term.vertices, term.tris
-        self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
-        self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
-                                                       axis=2).max(axis=1))
+        tris = term.tris
+        self.cen, self.rad = np.zeros((len(tris), 3)), np.zeros(len(tris))
+        centroids_radii(term.vertices, tris, self.cen, self.rad)
         self.depth = float(term.search_radius)
         self.X0 = self.X
         self.pose = np.zeros(2)
@@ -111,10 +121,7 @@ class _Rigid:
         """The lists at the current slave positions x, on the surface where it is."""
         t = self.term
         if t.motion is not None:
-            xv, tris = t.vertices, t.tris
-            self.cen = np.ascontiguousarray(xv[tris].mean(axis=1))
-            self.rad = np.ascontiguousarray(np.linalg.norm(xv[tris] - self.cen[:, None],
-                                                           axis=2).max(axis=1))
+            centroids_radii(t.vertices, t.tris, self.cen, self.rad)
             self.pose_ref = self.pose.copy()
         short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta, self.depth,
                     self.ptr, self.cand, self.dist)
@@ -155,10 +162,11 @@ class _Lip:
             nodes = np.asarray(p["nodes"], dtype=np.int64)
             npair = len(p["pair_tri"])
             nrm = term.normals[p["master"]]
+            part = nrm.read(p["pair_tri"])        # the master rows the kernel reads
             self.passes.append({
-                "p": p, "nrm": nrm, "mirror": (nrm._me[0].astype(np.int64),
-                                               nrm._me[1].astype(np.int64),
-                                               np.asarray(nrm._mv, dtype=np.int64)),
+                "p": p, "nrm": nrm, "rows": part.rows,
+                "mirror": (part.me[0].astype(np.int64), part.me[1].astype(np.int64),
+                           np.asarray(part.mv, dtype=np.int64)),
                 # the basis rows of the kernel's dofs (slave, triangle vertices)
                 "Vb": np.ascontiguousarray(pair_maps(p["pair_weights"])
                                            @ Vn[nodes].reshape(npair, 15, -1)),
@@ -188,8 +196,8 @@ class _Lip:
         x = t.extend(x, self.xe)
         for w in self.passes:
             p, nrm = w["p"], w["nrm"]
-            # nrm.update(x), the mirror part in numba
-            surface_normals(x, nrm.tris, nrm.topo.nbr, nrm.verts, nrm.fn, nrm.en, nrm.vn)
+            # nrm.update(x, part) on the rows the kernel reads, the mirror part in numba
+            surface_normals_part(x, nrm.tris, nrm.topo.nbr, *w["rows"], nrm.fn, nrm.en, nrm.vn)
             mirror_normals(nrm.en, w["mirror"][0], w["mirror"][1], nrm.vn, w["mirror"][2])
             surface_contact(x, p["slaves"], p["k"], nrm.tris, p["ptr"], p["pair_tri"],
                             *nrm.args(), t.depth, t.smoothing, True, w["fe"], w["ke"],

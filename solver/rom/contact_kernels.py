@@ -79,6 +79,22 @@ def _triangle_d2(p, xv, ia, ib, ic):
 
 
 @njit(cache=True)
+def centroids_radii(xv, tris, cen, rad):
+    """cen (t, 3) the centroids of the triangles tris (t, 3) over xv and rad (t,) their
+    bounding radii (largest centroid-vertex distance), for short_lists."""
+    for t in range(tris.shape[0]):
+        for i in range(3):
+            cen[t, i] = (xv[tris[t, 0], i] + xv[tris[t, 1], i] + xv[tris[t, 2], i]) / 3.0
+        r2 = 0.0
+        for a in range(3):
+            d2 = 0.0
+            for i in range(3):
+                d2 += (xv[tris[t, a], i] - cen[t, i]) ** 2
+            r2 = max(r2, d2)
+        rad[t] = np.sqrt(r2)
+
+
+@njit(cache=True)
 def short_lists(x, cen, rad, xv, tris, delta, depth, ptr, out, dist):
     """Candidate lists of the points x (s, 3) on the triangles tris (t, 3) over xv, with
     centroids cen (t, 3) and bounding radii rad (t,) (largest centroid-vertex distance):

@@ -121,23 +121,40 @@ def surface_normals(x, tris, nbr, verts, fn, en, vn):
     the face normal on a free edge) and angle-weighted vertex normals vn (p, 3) (rows
     verts (v,), the surface's vertices) of the triangles tris (t, 3) over points x (p, 3);
     nbr (t, 3) is the triangle across edge j or -1."""
+    every = np.arange(tris.shape[0])
+    mark = np.zeros(vn.shape[0], dtype=np.bool_)
+    mark[verts] = True
+    surface_normals_part(x, tris, nbr, every, every, verts, mark, every, fn, en, vn)
+
+
+@njit(cache=True)
+def surface_normals_part(x, tris, nbr, faces, ring, verts, mark, edges, fn, en, vn):
+    """surface_normals on rows of the surface only: the face normals of the triangles
+    faces (f,), the vertex normals of verts (v,) (mark (p,) True on them), summed over
+    ring (ascending: every triangle with a vertex in verts, so that each sum is the whole
+    surface's, in its order), and the edge pseudo-normals of the triangles edges (e,);
+    every other row keeps its value. Exact where the other rows' triangles have not
+    changed shape, or where the caller reads these rows only."""
     for v in verts:
         vn[v, 0] = vn[v, 1] = vn[v, 2] = 0.0
-    for t in range(tris.shape[0]):
+    for t in faces:
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
         e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
         e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
         s = np.sqrt(nx * nx + ny * ny + nz * nz)
         fn[t, 0], fn[t, 1], fn[t, 2] = nx / s, ny / s, nz / s
+    for t in ring:
         for j in range(3):
             p, q, r = tris[t, j], tris[t, (j + 1) % 3], tris[t, (j + 2) % 3]
+            if not mark[p]:
+                continue
             cosang = _dot(x, q, x, r, x, p) / np.sqrt(_dot(x, q, x, q, x, p)
                                                       * _dot(x, r, x, r, x, p))
             angle = np.arccos(min(1.0, max(-1.0, cosang)))
             for i in range(3):
                 vn[p, i] += angle * fn[t, i]
-    for t in range(tris.shape[0]):
+    for t in edges:
         for j in range(3):
             o = nbr[t, j]
             mx, my, mz = fn[t, 0], fn[t, 1], fn[t, 2]

@@ -151,6 +151,7 @@ master nodes (Newton's contact status prediction, solver.core.contact_update).
 """
 
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -158,7 +159,8 @@ from scipy.spatial import cKDTree
 from solver.core.errors import ParameterError
 from solver.core.kernels.contact import (extend_points, min_facing, nearest, pair_distances,
                                          rest_offsets, rigid_contact, signed_gaps,
-                                         surface_contact, surface_normals)
+                                         surface_contact, surface_normals,
+                                         surface_normals_part)
 from solver.core.kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from solver.core.terms.base import Term, pack_parts, unpack_parts
 
@@ -324,6 +326,15 @@ class _Topology:
         self.rim_tri[v[two], slot[two]] = tri[two]
 
 
+@dataclass(frozen=True)
+class _NormalsPart:
+    """Rows of a _Normals update: rows, surface_normals_part's (faces, ring, verts, mark,
+    edges); me, mv: the mirror edges (t, j) and vertices among them."""
+    rows: tuple
+    me: tuple
+    mv: np.ndarray
+
+
 class _Normals:
     """Face, edge and vertex (pseudo-)normals of a triangle surface, refreshed by update;
     on mirror edges and vertices (see _Topology) the normals of the mirrored surface
@@ -339,13 +350,51 @@ class _Normals:
         self._me = np.nonzero(self.topo.mirror_edge)
         self._mv = np.flatnonzero(self.topo.mirror_vertex)
 
-    def update(self, x):
-        surface_normals(x, self.tris, self.topo.nbr, self.verts, self.fn, self.en, self.vn)
-        for n, rows in ((self.en, self._me), (self.vn, self._mv)):
+    def update(self, x, part=None):
+        """Refresh the normals at the points x (p, 3): all of them, or the rows of a part
+        (changed() or read())."""
+        if part is None:
+            surface_normals(x, self.tris, self.topo.nbr, self.verts, self.fn, self.en, self.vn)
+            me, mv = self._me, self._mv
+        else:
+            surface_normals_part(x, self.tris, self.topo.nbr, *part.rows, self.fn, self.en,
+                                 self.vn)
+            me, mv = part.me, part.mv
+        for n, rows in ((self.en, me), (self.vn, mv)):
             m = n[rows]
             m[:, 0] = 0.0
             n[rows] = m / np.linalg.norm(m, axis=1)[:, None]
         return self
+
+    def changed(self, moved):
+        """The part of the normals that a motion of the vertices moved (p,) bool changes:
+        the faces with a moved vertex, their vertices' normals and the edges of those
+        faces and their neighbours (an update of it equals a whole one)."""
+        faces = np.flatnonzero(moved[self.tris].any(axis=1))
+        nbr = self.topo.nbr[faces]
+        edges = np.union1d(faces, nbr[nbr >= 0])
+        return self._part(faces, np.unique(self.tris[faces]), edges)
+
+    def read(self, tris):
+        """The part of the normals that a contact kernel reads on the triangles tris (k,)
+        (their faces, edges and vertices), for an update where every vertex may move."""
+        tris = np.unique(tris)
+        verts = np.unique(self.tris[tris])
+        ring = np.flatnonzero(np.isin(self.tris, verts).any(axis=1))
+        return self._part(np.union1d(ring, tris), verts, tris)
+
+    def _part(self, faces, verts, edges):
+        mark = np.zeros(len(self.vn), dtype=bool)
+        mark[verts] = True
+        ring = np.flatnonzero(mark[self.tris].any(axis=1))
+        in_edges = np.isin(self._me[0], edges)
+        return _NormalsPart(
+            rows=(np.ascontiguousarray(faces, dtype=np.int64),
+                  np.ascontiguousarray(ring, dtype=np.int64),
+                  np.ascontiguousarray(verts, dtype=np.int64), mark,
+                  np.ascontiguousarray(edges, dtype=np.int64)),
+            me=(self._me[0][in_edges], self._me[1][in_edges]),
+            mv=self._mv[mark[self._mv]])
 
     def args(self):
         """The kernels' (fn, en, vn, free_edge, free_vertex)."""
@@ -529,6 +578,7 @@ class RigidContact(_Report, Term):
         self._report(np.full(s, np.inf), np.zeros(s), np.zeros((mesh.n_nodes, 3)))
         self.motion, self.rest_vertices = motion, self.vertices.copy()
         self.pose = np.zeros(2)
+        self._moved = None
 
     def _move(self, lam):
         """Put the moving vertices at the jaw's pose at load factor lam."""
@@ -546,7 +596,9 @@ class RigidContact(_Report, Term):
         if np.any(pose != 0.0):
             v[moving] = jaw.geometry.transform(v[moving], pose)
         self.vertices = np.ascontiguousarray(v)
-        self.normals.update(self.vertices)
+        if self._moved is None:                      # the rows the jaw's motion changes
+            self._moved = self.normals.changed(moving)
+        self.normals.update(self.vertices, self._moved)
         self._tree = None                 # the candidate search's, rebuilt when needed
         self._cached = None
 
