@@ -156,6 +156,17 @@ def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatc
             if rom2.mode == "full":
                 break
     assert rom2.mode == "full" and rom2.outputs()["rom_fallbacks"] == 1
+    rom3 = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                           loaded_anatomy=trained["full"].anatomy, trust="warn")
+    rom3.set_activations({"OOP": 1.0})
+    past = 0
+    with warnings.catch_warnings(record=True) as seen:         # trust "warn": warned once,
+        warnings.simplefilter("always")
+        for k in range(1, 7):
+            assert rom3.step(0.005 * k).converged and rom3.mode == "rom"
+            past += rom3.stepper.penetration > rs.TOLERANCE
+    assert [str(w.message).count("contact penetration") for w in seen] == [1]
+    assert past >= 2 and rom3.trust_exceeded == {"penetration": past}   # every one counted
 
 
 def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,

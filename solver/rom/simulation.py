@@ -42,8 +42,10 @@ rho above the model's trust threshold (calibrated in training: a multiple of the
 rho met on training patterns) means the state has left the span the model was trained
 on. trust="fallback" (default): a warning, the caller's step is redone by the full model
 from the reduced state at its start, and the simulation stays full-order from then on
-(`mode` = "full"); "warn": a warning only; "off": no check. A substep that fails after
-every split also falls back (or fails, with trust "warn"/"off").
+(`mode` = "full"); "warn": a warning the first time for each cause (penetration,
+residual), every such step counted in `trust_exceeded` {cause: steps}; "off": no check.
+A substep that fails after every split also falls back (or fails, with trust
+"warn"/"off").
 """
 
 import warnings
@@ -143,6 +145,7 @@ class ReducedSimulation(Simulation):
         self._outputs = LipOutputs(self.face, V)
         self.mode = "rom"
         self.fallbacks = 0               # handovers to the full model (_to_full)
+        self.trust_exceeded = {}         # trust "warn": {cause: steps past its limit}
         self.trust_history = []          # (t, rho) of every check
         if warmup:
             self.warmup()
@@ -206,6 +209,7 @@ class ReducedSimulation(Simulation):
         pen = self.stepper.penetration if ok and self.trust != "off" else 0.0
         bad = not ok or (rho is not None and rho > self.trust_threshold) or pen > TOLERANCE
         if bad:
+            cause = "failed" if not ok else "penetration" if pen > TOLERANCE else "residual"
             what = (f"reduced step failed ({stats.reason})" if not ok else
                     f"contact penetration {pen:.3g} mm above the contact tolerance "
                     f"{TOLERANCE} mm" if pen > TOLERANCE else
@@ -227,8 +231,11 @@ class ReducedSimulation(Simulation):
                 stats.converged = False
                 self.last = stats
                 return stats
-            warnings.warn(f"realtime model at t = {t_end:.4g} s: {what}", TrustWarning,
-                          stacklevel=2)
+            self.trust_exceeded[cause] = self.trust_exceeded.get(cause, 0) + 1
+            if self.trust_exceeded[cause] == 1:
+                warnings.warn(f"realtime model at t = {t_end:.4g} s: {what} (trust 'warn': "
+                              f"further steps past it are counted in trust_exceeded, not "
+                              f"warned)", TrustWarning, stacklevel=2)
         act.commit()
         self.face.end_step(True)                            # the jaw's pose committed
         self.t = float(t_end)
