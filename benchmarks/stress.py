@@ -102,6 +102,10 @@ def run_solver(selected, halving):
             if not change <= limit:
                 run.problems.append(f"halving every substep changed the lip outputs by "
                                     f"{change:.3g} mm > {limit:.3g} mm")
+        if run.fallbacks:
+            notes.append(f"{case.name}: the reduced model handed the run to the full model "
+                         f"({run.fallbacks} fallback{'s' * (run.fallbacks > 1)}; "
+                         "solver.rom.simulation's trust check), which finished the case")
         if case.equilibrium:
             notes.append(f"{case.name}: largest lip-output distance to the static "
                          "equilibrium at each tenth of the run (mm): "

@@ -322,6 +322,23 @@ def test_the_realtime_configuration_runs_the_shipped_model_at_halved_substeps():
     assert [s.stepper.h_max for s in sims] == [H_MAX, H_MAX / 2]
 
 
+def test_a_realtime_case_counts_its_fallbacks(monkeypatch):
+    """A reduced run that hands over to the full model says so (CaseRun.fallbacks, a note
+    in the report): here the lips pressed, with a contact limit below what the reduced
+    contact reaches."""
+    import warnings
+    import solver.rom.simulation as rs
+    from dataclasses import replace
+    on = S.configured(QUICK["pressed_released"], "generic", None, "realtime")
+    run = S.run_case(replace(on, steps=on.steps[:2]), probe=False)
+    assert run.passed and run.fallbacks == 0, _explain(run)
+    monkeypatch.setattr(rs, "TOLERANCE", 1e-6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rs.TrustWarning)
+        run = S.run_case(replace(on, steps=on.steps[:2]), probe=False)
+    assert run.passed and run.fallbacks == 1, _explain(run)
+
+
 def test_case_scenes_round_trip_through_toml(tmp_path):
     from solver.app.scene import load_scene, parse_scene
     for case in QUICK.values():

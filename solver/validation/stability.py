@@ -607,6 +607,7 @@ class CaseRun:
     rollbacks: int = 0                               # repeats of the rolled-back step
     start: dict = field(default_factory=dict)        # lip outputs before the first step
     substep_tol: float = None                        # mm: the adaptive stepper's (None: fixed)
+    fallbacks: int = 0                               # a reduced run's handovers to the full model
     wall: float = 0.0
 
     @property
@@ -710,6 +711,7 @@ def run_case(case, progress=None, probe=True):
                          "newton_iterations": stats.newton_iterations})
         if progress:
             progress(k + 1, n)
+    run.fallbacks = int(getattr(sim, "fallbacks", 0))
     if case.rollback and run.steps == n:
         h, acts = case.steps[-1]
         saved, t_saved, first = sim.get_state(), sim.t, None
