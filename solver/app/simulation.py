@@ -215,13 +215,17 @@ class Simulation:
         """(n, 3) the current displacements (mm)."""
         return self.face.u
 
+    @property
+    def v(self):
+        """(n, 3) the current velocities (mm/s; zero in a static analysis)."""
+        return self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)
+
     def get_state(self, fresh=True):
         """Everything needed to resume: copies of arrays, plain floats. fresh: a model with
         caches that steer its next step (the reduced model's) drops them, so that the next
         step equals one after set_state of this state (False: a plain read, for a caller
         that only looks; nothing here to drop)."""
-        v = self.integrator.v if self.integrator is not None else np.zeros_like(self.face.u)
-        return {"t": self.t, "u": self.face.u.copy(), "v": v.copy(),
+        return {"t": self.t, "u": self.face.u.copy(), "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(),
                 "jaw": np.array(self.jaw),
                 "h": self.integrator.h if self.integrator is not None else 0.0,

@@ -287,6 +287,11 @@ class ReducedSimulation(Simulation):
         return self.face.u if self.mode == "full" else self.op.displacement(self.q,
                                                                              self._lift())
 
+    @property
+    def v(self):
+        """(n, 3) the current velocities (mm/s; V v_r in mode 'rom')."""
+        return super().v if self.mode == "full" else self.op.displacement(self.v_r, 0.0)
+
     def get_state(self, fresh=True):
         if self.mode == "full":
             return {**super().get_state(fresh), "mode": "full", "fallbacks": self.fallbacks}
@@ -294,7 +299,7 @@ class ReducedSimulation(Simulation):
             self.stepper.reset_caches()      # the next step starts afresh, as after set_state
         L = self._lift()
         return {"t": self.t, "u": self.op.displacement(self.q, L).copy(),
-                "v": self.op.displacement(self.v_r, 0.0 * L).copy(),
+                "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(), "jaw": np.array(self.jaw),
                 "h": self.h_max, "fallbacks": self.fallbacks,
                 "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom"}

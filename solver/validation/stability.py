@@ -545,7 +545,7 @@ def output_bounds(anatomy):
 def check_state(sim, probe=None, bounds=None):
     """Invariants of a simulation's current state: (measures dict, problems list)."""
     u = sim.u                                   # a reduced model's, reconstructed
-    v = sim.get_state(fresh=False).get("v", np.zeros_like(u))
+    v = sim.v
     problems = []
     finite = bool(np.all(np.isfinite(u)) and np.all(np.isfinite(v)))
     out = sim.outputs()
