@@ -169,15 +169,20 @@ def run_fmu(selected, runs, out, notes, fmu=None):
     return rows, problems
 
 
-def markdown(rows, command, notes, problems, wall, part=None):
+def markdown(rows, command, notes, problems, wall, part=None, started=None):
     """The report; part: a heading (level 2) for a report that a page includes, which then
-    leaves out the legend (the page explains the columns)."""
+    leaves out the legend (the page explains the columns); started: commit() when the run
+    began (named too where the checkout changed during the run)."""
+    now = commit()
+    started = started or now
+    at = started if started == now else \
+        f"{started} (the checkout was at {now} when it ended; the FMU is built mid-run)"
     def cell(v):
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3g}"
         return str(v)
     lines = [f"## {part}" if part else "# Stability: the hard cases", "",
-             f"Made by `{command}` at commit {commit()} on "
+             f"Made by `{command}` at commit {at} on "
              f"{datetime.date.today().isoformat()}, {platform.machine()} "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
@@ -218,6 +223,7 @@ def markdown(rows, command, notes, problems, wall, part=None):
 
 
 def main(argv=None):
+    started = commit()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the CI versions of the cases")
     ap.add_argument("--no-fmu", action="store_true", help="skip the runs through the FMU")
@@ -285,7 +291,7 @@ def main(argv=None):
     report(rows, KEYS, csv_path=out / "stress.csv")
     command = "python benchmarks/stress.py " + " ".join(a for a in (argv or sys.argv[1:]))
     notes += [f"{c.name} not run (n/a): {c.not_applicable}" for c in skipped]
-    text = markdown(rows, command.strip(), notes, problems, wall, args.part)
+    text = markdown(rows, command.strip(), notes, problems, wall, args.part, started)
     (out / "stress.md").write_text(text)
     if args.doc:
         Path(args.doc).write_text(text)
