@@ -19,7 +19,7 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   contact depth gets an empty list: out of contact either way). The lists are rebuilt
   (one brute-force numba pass over the triangles) when a slave has moved more than delta
   (0.5 mm in solver.rom.simulation; at least MOVING_DELTA on a surface that follows the
-  jaw, whose motion counts against it too). Slaves are not skipped by distance: beyond a free
+  jaw while the jaw moves, whose motion counts against it too). Slaves are not skipped by distance: beyond a free
   edge the term's penalty is not a function of the distance alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
@@ -60,16 +60,13 @@ def _deepest(gap):
     return float(max(0.0, -g.min())) if g.size else 0.0
 
 
-MOVING_DELTA = 1.0   # mm: the least delta of lists on a surface that follows the jaw
+MOVING_DELTA = 1.0   # mm: the least delta of lists on a surface the jaw is moving
 
 
 class _Rigid:
     def __init__(self, term, Vn, delta):
-        self.term, self.delta = term, float(delta)
-        if term.motion is not None:
-            # the surface's own motion spends the margin too (|d theta| R + |d p|, R about
-            # 100 mm): longer lists cost less than rebuilding them every few substeps
-            self.delta = max(self.delta, MOVING_DELTA)
+        self.term, self.base = term, float(delta)
+        self.delta = self.base                 # the margin the current lists were built with
         self.slaves = np.asarray(term.slaves, dtype=np.int64)
         s = len(self.slaves)
         self.X = np.ascontiguousarray(term.x0)              # rest positions, offsets in
@@ -121,6 +118,10 @@ class _Rigid:
         """The lists at the current slave positions x, on the surface where it is."""
         t = self.term
         if t.motion is not None:
+            # while the jaw moves its motion spends the margin too (|d theta| R + |d p|, R
+            # about 100 mm): longer lists then cost less than rebuilding every few substeps
+            moved = self.pose_ref is not None and not np.array_equal(self.pose, self.pose_ref)
+            self.delta = max(self.base, MOVING_DELTA) if moved else self.base
             centroids_radii(t.vertices, t.tris, self.cen, self.rad)
             self.pose_ref = self.pose.copy()
         short_lists(self.x, self.cen, self.rad, t.vertices, t.tris, self.delta, self.depth,
@@ -129,6 +130,7 @@ class _Rigid:
 
     def reset(self):
         self.x_ref = np.zeros((0, 3))                  # rebuild the lists at the next call
+        self.pose_ref = None                           # at the base margin, as at the start
 
     def evaluate(self, q, x, need_k, fr, kr):
         t = self.term
