@@ -206,7 +206,7 @@ def main(argv=None):
                    f"| {key} | {best['wall_s'] / duration:.2f} / {med / duration:.2f} | "
                    f"{min(walls) / duration:.2f} | {ap:.3f} / {pr:.3f} | {rng_ap:.2f} / "
                    f"{rng_pr:.2f} | `{command('benchmarks/realtime_fmu.py')}`, "
-                   f"{commit()} |")
+                   f"{commit(ignore=[args.md])} |")
     return 0
 
 

@@ -9,9 +9,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def commit(root=ROOT):
+def commit(root=ROOT, ignore=()):
     """The checkout's short commit, with " with uncommitted changes" where the tracked
-    files differ from it ("unknown" outside a git checkout)."""
+    files differ from it ("unknown" outside a git checkout); the files ignore (paths) do
+    not count (a table that earlier calls of the same command have been writing)."""
     def git(*a):
         try:
             return subprocess.run(["git", *a], cwd=root, capture_output=True,
@@ -19,8 +20,10 @@ def commit(root=ROOT):
         except OSError:
             return ""
     head = git("rev-parse", "--short", "HEAD") or "unknown"
+    skip = [f":(exclude){Path(p).resolve()}" for p in ignore]
     return head + (" with uncommitted changes" if git("status", "--porcelain",
-                                                     "--untracked-files=no") else "")
+                                                     "--untracked-files=no", "--", ".",
+                                                     *skip) else "")
 
 
 def stamp():
