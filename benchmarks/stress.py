@@ -105,7 +105,7 @@ def run_solver(selected, halving):
         if run.fallbacks:
             notes.append(f"{case.name}: the reduced model handed the run to the full model "
                          f"({run.fallbacks} fallback{'s' * (run.fallbacks > 1)}; "
-                         "solver.rom.simulation's trust check), which finished the case")
+                         "solver.rom.simulation's trust check) and the full model went on")
         if case.equilibrium:
             notes.append(f"{case.name}: largest lip-output distance to the static "
                          "equilibrium at each tenth of the run (mm): "

@@ -215,14 +215,16 @@ def test_partial_normal_updates_equal_the_whole_one(rng):
     tris, x0 = np.asarray(s.triangles), np.asarray(s.vertices, dtype=float)
     x0 = x0 - [x0[:, 0].min(), 0.0, 0.0]                 # the plane x = 0 on an edge
     mirror = np.isclose(x0[:, 0], 0.0)
-    moved = (x0[:, 0] > 2.2) & (x0[:, 1] < 0.5)
+    moved = ((x0[:, 0] > 2.2) & (x0[:, 1] < 0.5)) | (mirror & (x0[:, 1] > 1.0))
     x1 = x0.copy()
     x1[moved] += 0.3 * rng.standard_normal((moved.sum(), 3))
+    x1[mirror, 0] = 0.0                                    # mirror vertices stay on it
     whole = _Normals(tris, len(x0), mirror).update(x1)
     part = _Normals(tris, len(x0), mirror).update(x0)
     assert not np.array_equal(part.fn, whole.fn)
     rows = part.changed(moved)
     assert 0 < len(rows.rows[0]) < len(tris)               # a part, not all of it
+    assert len(rows.mv) and len(rows.me[0])                # with mirror rows
     part.update(x1, rows)
     for a, b in zip(part.args()[:3], whole.args()[:3]):
         assert np.array_equal(a, b)

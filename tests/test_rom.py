@@ -169,6 +169,34 @@ def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatc
     assert past >= 2 and rom3.trust_exceeded == {"penetration": past}   # every one counted
 
 
+def test_the_lip_adapter_follows_candidate_pairs_the_term_replaced(trained):
+    """After the full model re-picks the lip contact's candidate pairs (a fallback) and a
+    reduced state is restored, the reduced lip contact works on the term's new pairs: the
+    same force as the terms' own assemble() (the generic path) on them."""
+    from solver.rom.contact import ReducedContact
+    rom = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
+                          loaded_anatomy=trained["full"].anatomy, trust="off")
+    rom.set_activations({"OOP": 1.0})
+    for k in range(1, 4):                                        # lips pressed
+        assert rom.step(0.005 * k).converged
+    c = rom.stepper.online.contact
+    lip = next(a for a in c.adapters if hasattr(a, "passes"))
+    term = lip.term
+    for p in term.passes:                  # as the full model's follow_state: new arrays,
+        ptr = p["ptr"]                     # here each slave's candidates in reverse order
+        order = np.concatenate([np.arange(a, b)[::-1] for a, b in zip(ptr[:-1], ptr[1:])])
+        free = p.get("pair_free")
+        term._set_pairs(p, ptr.copy(), p["pair_tri"][order].copy(),
+                        None if free is None else free[order].copy())
+    q = rom.q
+    fast = c.evaluate(q, False)[0].copy()
+    assert all(w["src"] is w["p"]["pair_tri"] for w in lip.passes)   # rebuilt on them
+    generic = ReducedContact(rom.op.contact, rom.op.V, rom.op.mesh.n_nodes, generic=True)
+    ref = generic.evaluate(q, False)[0]
+    assert np.abs(ref).max() > 0
+    assert np.allclose(fast, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
 def test_realtime_without_a_trained_model_names_the_training_command(tmp_path,
                                                                      monkeypatch):
     from solver.rom import ModelNotTrained

@@ -158,15 +158,22 @@ class _Rigid:
 
 class _Lip:
     def __init__(self, term, Vn):
-        self.term = term
-        self.passes = []
-        for p in term.passes:
-            nodes = np.asarray(p["nodes"], dtype=np.int64)
-            npair = len(p["pair_tri"])
-            nrm = term.normals[p["master"]]
-            part = nrm.read(p["pair_tri"])        # the master rows the kernel reads
-            self.passes.append({
-                "p": p, "nrm": nrm, "rows": part.rows,
+        self.term, self.Vn = term, Vn
+        self.passes = [self._work(p) for p in term.passes]
+        self.kv = np.zeros((12, Vn.shape[2]))
+        self._f0 = np.zeros(Vn.shape[2])
+        self.n = len(Vn)
+        self.xe = np.zeros((self.n + len(term.virtual_nodes), 3))   # with the virtual vertices
+
+    def _work(self, p):
+        """The adapter's arrays of the term's pass p, for its current candidate pairs (the
+        term replaces them when the full model re-picks them: evaluate then rebuilds)."""
+        term, Vn = self.term, self.Vn
+        nodes = np.asarray(p["nodes"], dtype=np.int64)
+        npair = len(p["pair_tri"])
+        nrm = term.normals[p["master"]]
+        part = nrm.read(p["pair_tri"])            # the master rows the kernel reads
+        return {"p": p, "src": p["pair_tri"], "nrm": nrm, "rows": part.rows,
                 "mirror": (part.me[0].astype(np.int64), part.me[1].astype(np.int64),
                            np.asarray(part.mv, dtype=np.int64)),
                 # the basis rows of the kernel's dofs (slave, triangle vertices)
@@ -179,11 +186,7 @@ class _Lip:
                 # the term's kernel arguments after `kept` (its candidate-boundary flags
                 # and fade length), as its assemble() passes them
                 "extra": ((p["pair_free"], float(term.fade)) if "pair_free" in p else
-                          ((None, float(term.fade)) if hasattr(term, "fade") else ()))})
-        self.kv = np.zeros((12, Vn.shape[2]))
-        self._f0 = np.zeros(Vn.shape[2])
-        self.n = len(Vn)
-        self.xe = np.zeros((self.n + len(term.virtual_nodes), 3))   # with the virtual vertices
+                          ((None, float(term.fade)) if hasattr(term, "fade") else ()))}
 
     def nodes(self):
         # pair nodes and every node of the master surfaces (their edge and vertex
@@ -196,7 +199,9 @@ class _Lip:
         t = self.term
         total, sig = 0.0, 0
         x = t.extend(x, self.xe)
-        for w in self.passes:
+        for i, w in enumerate(self.passes):
+            if w["p"]["pair_tri"] is not w["src"]:        # the term re-picked its pairs
+                self.passes[i] = w = self._work(w["p"])
             p, nrm = w["p"], w["nrm"]
             # nrm.update(x, part) on the rows the kernel reads, the mirror part in numba
             surface_normals_part(x, nrm.tris, nrm.topo.nbr, *w["rows"], nrm.fn, nrm.en, nrm.vn)

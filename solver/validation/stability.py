@@ -45,10 +45,14 @@ substep controller bounds each substep's local error, so the global error grows 
 the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
 HALVING_TOLERANCE is set for the default substep tolerance (HALVING_AT, 1e-3 mm); a
 scene with a looser one (the balanced and fast presets: 5e-2 mm) is held to
-HALVING_TOLERANCE sqrt(tol / HALVING_AT): the controller keeps the local error
-~ c h^2 at tol, so its substeps are h ~ sqrt(tol / c), and backward Euler's global
-error, first order in h, grows as sqrt(tol). A reduced run (fixed substeps) is held to
-HALVING_TOLERANCE.
+HALVING_TOLERANCE sqrt(tol / HALVING_AT), a scaling taken from smooth motion: the
+controller keeps the local error ~ c h^2 at tol, so its substeps are h ~ sqrt(tol / c),
+and backward Euler's global error, first order in h, grows as sqrt(tol). It is a
+heuristic, not a bound: the nodes in contact are outside the error estimate
+(solver/core/transient.py), and those presets also loosen Newton's tolerance, which
+halved() keeps. A branch taken one way or the other (pressed lip tips sliding past each
+other: docs/dev-notes/contact-hard-cases.md §6, 1.7 mm) stays far above it. A reduced
+run (fixed substeps) is held to HALVING_TOLERANCE.
 """
 
 import math

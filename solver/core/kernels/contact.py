@@ -133,8 +133,9 @@ def surface_normals_part(x, tris, nbr, faces, ring, verts, mark, edges, fn, en, 
     faces (f,), the vertex normals of verts (v,) (mark (p,) True on them), summed over
     ring (ascending: every triangle with a vertex in verts, so that each sum is the whole
     surface's, in its order), and the edge pseudo-normals of the triangles edges (e,);
-    every other row keeps its value. Exact where the other rows' triangles have not
-    changed shape, or where the caller reads these rows only."""
+    every other row keeps its value. Exact where the vertices of the other rows'
+    triangles have not moved (a rigid motion turns normals too), or where the caller reads
+    these rows only."""
     for v in verts:
         vn[v, 0] = vn[v, 1] = vn[v, 2] = 0.0
     for t in faces:
