@@ -159,6 +159,7 @@ def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatc
     rom3 = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
                            loaded_anatomy=trained["full"].anatomy, trust="warn")
     rom3.set_activations({"OOP": 1.0})
+    start = rom3.get_state()
     past = 0
     with warnings.catch_warnings(record=True) as seen:         # trust "warn": warned once,
         warnings.simplefilter("always")
@@ -167,6 +168,16 @@ def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatc
             past += rom3.stepper.penetration > rs.TOLERANCE
     assert [str(w.message).count("contact penetration") for w in seen] == [1]
     assert past >= 2 and rom3.trust_exceeded == {"penetration": past}   # every one counted
+    import io
+    state = rom3.get_state()               # part of the state, as the FMU serializes it
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in state.items()})
+    with np.load(io.BytesIO(buf.getvalue()), allow_pickle=False) as z:
+        restored = {k: z[k] for k in z.files}
+    rom3.set_state(start)                  # a rollback undoes the count
+    assert rom3.trust_exceeded == {}
+    rom3.set_state(restored)
+    assert rom3.trust_exceeded == {"penetration": past}
 
 
 def test_the_lip_adapter_follows_candidate_pairs_the_term_replaced(trained):

@@ -66,6 +66,7 @@ from solver.rom.outputs import LipOutputs
 from solver.rom.trust import TrustCheck
 
 TRUST_MODES = ("fallback", "warn", "off")
+TRUST_CAUSES = ("failed", "penetration", "residual")   # keys of trust_exceeded
 
 
 class TrustWarning(UserWarning):
@@ -287,6 +288,10 @@ class ReducedSimulation(Simulation):
         return self.face.u if self.mode == "full" else self.op.displacement(self.q,
                                                                              self._lift())
 
+    def _exceeded(self):
+        """trust_exceeded as an array (TRUST_CAUSES order), for a state that serializes."""
+        return np.array([self.trust_exceeded.get(c, 0) for c in TRUST_CAUSES], dtype=np.int64)
+
     @property
     def v(self):
         """(n, 3) the current velocities (mm/s; V v_r in mode 'rom')."""
@@ -294,7 +299,8 @@ class ReducedSimulation(Simulation):
 
     def get_state(self, fresh=True):
         if self.mode == "full":
-            return {**super().get_state(fresh), "mode": "full", "fallbacks": self.fallbacks}
+            return {**super().get_state(fresh), "mode": "full", "fallbacks": self.fallbacks,
+                    "trust_exceeded": self._exceeded()}
         if fresh:
             self.stepper.reset_caches()      # the next step starts afresh, as after set_state
         L = self._lift()
@@ -302,10 +308,14 @@ class ReducedSimulation(Simulation):
                 "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(), "jaw": np.array(self.jaw),
                 "h": self.h_max, "fallbacks": self.fallbacks,
+                "trust_exceeded": self._exceeded(),
                 "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom"}
 
     def set_state(self, state):
         self.fallbacks = int(state.get("fallbacks", self.fallbacks))
+        if "trust_exceeded" in state:
+            counts = np.asarray(state["trust_exceeded"], dtype=np.int64).ravel()
+            self.trust_exceeded = {c: int(n) for c, n in zip(TRUST_CAUSES, counts) if n}
         if state.get("mode", "rom") == "full":
             super().set_state(state)
             self.mode = "full"
