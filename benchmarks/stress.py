@@ -4,7 +4,7 @@ convergence check and (--fmu) the same cases through the built FMU with fmpy; a 
     python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
                                 [--anatomy generic|reference|FOLDER] [--level LEVEL]
                                 [--fidelity PRESET] [--config NAME ...]
-                                [--out out/stress] [--doc FILE]
+                                [--out out/stress] [--doc FILE] [--jobs N]
 
 With no options it runs every full case in process and through the FMU and rewrites
 docs/stability.md whole (commit, date, wall time, the table, the failures). --quick runs
@@ -18,7 +18,10 @@ page includes; docs/stability_configurations.md includes one per configuration:
 
     python benchmarks/stress.py --quick --config paper --part paper --doc docs/generated/stability_paper.md
 
-Writes OUT/stress.csv and OUT/stress.md; exits with 1 when a case fails.
+--jobs N runs N cases at once, each in its own process (in process and through the FMU;
+on a machine with N cores, about N times faster; each case's wall time then includes
+the others' load). Writes OUT/stress.csv and OUT/stress.md; exits with 1 when a case
+fails.
 
 Columns: pass; steps (accepted communication steps) and refused ones; substeps, Newton
 iterations, cutbacks (total) and worst cutbacks (in one step); min det F over all Gauss
@@ -81,38 +84,56 @@ def solver_row(case, run, halving):
             "memory_mb": run.memory_growth_mb, "wall_s": run.wall}
 
 
-def run_solver(selected, halving):
+def _solve(case, halving):
+    """One case in this process, and its halved run: (row, CaseRun, notes)."""
+    print(f"-- {case.name}: {case.description}", flush=True)
+    notes = []
+    try:
+        run = S.run_case(case)
+    except Exception as exc:        # a configuration that cannot open: a FAIL row
+        run = S.CaseRun(case.name)
+        run.problem(None, f"{type(exc).__name__}: {exc}")
+    change = float("nan")
+    if halving and case.halving and run.passed:
+        half = S.run_case(case.halved(), probe=False)
+        change = S.halving_change(run, half)
+        run.wall += half.wall
+        if not half.passed:
+            run.problems += [f"halved: {p}" for p in half.problems]
+        limit = S.halving_limit(run)
+        if not change <= limit:
+            run.problems.append(f"halving every substep changed the lip outputs by "
+                                f"{change:.3g} mm > {limit:.3g} mm")
+    if run.fallbacks:
+        notes.append(f"{case.name}: the reduced model handed the run to the full model "
+                     f"({run.fallbacks} fallback{'s' * (run.fallbacks > 1)}; "
+                     "solver.rom.simulation's trust check) and the full model went on")
+    if case.equilibrium:
+        notes.append(f"{case.name}: largest lip-output distance to the static "
+                     "equilibrium at each tenth of the run (mm): "
+                     + ", ".join(f"{d:.3g}" for d in run.equilibrium_distances))
+    row = solver_row(case, run, change)
+    print(f"   {case.name}: {row['pass']} in {run.wall:.1f} s" +
+          "".join(f"\n   {p}" for p in run.problems), flush=True)
+    return row, run, notes
+
+
+def run_solver(selected, halving, jobs=1):
+    """The cases in process, in `jobs` worker processes at once (spawned: fresh
+    interpreters, no fork of numba's threads); rows in the cases' order."""
+    if jobs > 1 and len(selected) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(min(jobs, len(selected)),
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(_solve, selected, [halving] * len(selected)))
+    else:
+        results = [_solve(case, halving) for case in selected]
     rows, runs, notes = [], {}, []
-    for case in selected:
-        print(f"-- {case.name}: {case.description}", flush=True)
-        try:
-            run = S.run_case(case)
-        except Exception as exc:        # a configuration that cannot open: a FAIL row
-            run = S.CaseRun(case.name)
-            run.problem(None, f"{type(exc).__name__}: {exc}")
+    for case, (row, run, more) in zip(selected, results):
+        rows.append(row)
         runs[case.name] = run
-        change = float("nan")
-        if halving and case.halving and run.passed:
-            half = S.run_case(case.halved(), probe=False)
-            change = S.halving_change(run, half)
-            run.wall += half.wall
-            if not half.passed:
-                run.problems += [f"halved: {p}" for p in half.problems]
-            limit = S.halving_limit(run)
-            if not change <= limit:
-                run.problems.append(f"halving every substep changed the lip outputs by "
-                                    f"{change:.3g} mm > {limit:.3g} mm")
-        if run.fallbacks:
-            notes.append(f"{case.name}: the reduced model handed the run to the full model "
-                         f"({run.fallbacks} fallback{'s' * (run.fallbacks > 1)}; "
-                         "solver.rom.simulation's trust check) and the full model went on")
-        if case.equilibrium:
-            notes.append(f"{case.name}: largest lip-output distance to the static "
-                         "equilibrium at each tenth of the run (mm): "
-                         + ", ".join(f"{d:.3g}" for d in run.equilibrium_distances))
-        rows.append(solver_row(case, run, change))
-        print(f"   {rows[-1]['pass']} in {run.wall:.1f} s" +
-              "".join(f"\n   {p}" for p in run.problems), flush=True)
+        notes += more
     return rows, runs, notes
 
 
@@ -124,29 +145,35 @@ def build_fmu(dest):
     return Path(dest) / "FaceFMU.fmu"
 
 
-def run_fmu(selected, runs, out, notes, fmu=None):
+def run_fmu(selected, runs, out, notes, fmu=None, jobs=1):
+    """The cases through the FMU with fmpy, in `jobs` fmpy processes at once (the cases
+    dealt out in turn)."""
     from solver.app.simulation import Simulation
     fmu = Path(fmu) if fmu else build_fmu(out / "fmu")
     bounds = S.output_bounds(Simulation(parse_scene(selected[0].scene)).anatomy)
-    rows, problems = [], {}
+    rows, problems, results = [], {}, {}
     with tempfile.TemporaryDirectory(prefix="facefmu-stress-") as tmp:
         tmp = Path(tmp)
-        specs = [S.fmu_spec(c, tmp / f"{c.name}.toml") for c in selected]
-        (tmp / "cases.json").write_text(json.dumps(specs))
         print(f"-- through the FMU ({fmu})", flush=True)
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, str(ROOT / "tests" / "fmu_scripts" /
-                                                    "stress_case.py"), str(fmu),
-                               str(tmp / "out.json"), str(tmp / "cases.json")],
-                              capture_output=True, text=True, cwd=tmp)
-        finished = "ok" in proc.stdout.splitlines() and (tmp / "out.json").is_file()
-        if not finished:
-            raise SystemExit(f"the FMU run crashed (exit {proc.returncode}):\n"
-                             f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
-        if proc.returncode != 0:
-            raise SystemExit(f"the fmpy process finished every case, then exited with "
-                             f"{proc.returncode}:\n{proc.stderr[-3000:]}")
-        results = json.loads((tmp / "out.json").read_text())
+        procs = []
+        for j in range(max(1, min(jobs, len(selected)))):
+            specs = [S.fmu_spec(c, tmp / f"{c.name}.toml") for c in selected[j::jobs]]
+            (tmp / f"cases{j}.json").write_text(json.dumps(specs))
+            procs.append((j, subprocess.Popen(
+                [sys.executable, str(ROOT / "tests" / "fmu_scripts" / "stress_case.py"),
+                 str(fmu), str(tmp / f"out{j}.json"), str(tmp / f"cases{j}.json")],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)))
+        for j, proc in procs:
+            stdout, stderr = proc.communicate()
+            done = tmp / f"out{j}.json"
+            if not ("ok" in stdout.splitlines() and done.is_file()):
+                raise SystemExit(f"the FMU run crashed (exit {proc.returncode}):\n"
+                                 f"{stdout[-2000:]}\n{stderr[-3000:]}")
+            if proc.returncode != 0:
+                raise SystemExit(f"the fmpy process finished every case, then exited with "
+                                 f"{proc.returncode}:\n{stderr[-3000:]}")
+            results.update(json.loads(done.read_text()))
         print(f"   {time.perf_counter() - t0:.1f} s", flush=True)
     for case in selected:
         res = results[case.name]
@@ -241,10 +268,14 @@ def main(argv=None):
     ap.add_argument("--config", nargs="+", choices=[*CONFIGURATIONS, "all"],
                     help="named configurations, one report (overrides --anatomy, --level "
                     "and --fidelity)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="cases run at once, each in its own process (default 1)")
     ap.add_argument("--part", metavar="HEADING",
                     help="write the report as a part of a page that includes it: this "
                     "level-2 heading, no legend")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs {args.jobs}: at least 1")
     reference = str(ROOT.parent / "shared" / "data" / "reference-face")
     if args.anatomy == "reference":
         args.anatomy = reference
@@ -277,13 +308,13 @@ def main(argv=None):
         selected = [c for c in selected if not c.not_applicable]
         if not selected:
             continue
-        solver_rows, runs, more = run_solver(selected, not args.no_halving)
+        solver_rows, runs, more = run_solver(selected, not args.no_halving, args.jobs)
         rows += solver_rows
         notes += more
         problems.update({c.name: runs[c.name].problems for c in selected})
         if not args.no_fmu:
             fmu = fmu or build_fmu(out / "fmu")
-            fmu_rows, fmu_problems = run_fmu(selected, runs, out, notes, fmu)
+            fmu_rows, fmu_problems = run_fmu(selected, runs, out, notes, fmu, args.jobs)
             rows += fmu_rows
             problems.update({f"fmu:{k}": v for k, v in fmu_problems.items()})
     wall = time.perf_counter() - t0
