@@ -374,7 +374,8 @@ def test_random_activation_sequences(sim, probe, sequence, step):
 
 KNOWN = {
     # the run with every substep halved ends 1.74 mm away in a lip output (limit 0.138 mm;
-    # python benchmarks/stress.py --cases switching_0); why is not known yet
+    # python benchmarks/stress.py --cases switching_0): the pressed lip tips slide past
+    # each other one way or the other (docs/dev-notes/contact-hard-cases.md §6)
     "switching_0": "halving every substep changes the lip outputs by 1.74 mm",
 }
 
