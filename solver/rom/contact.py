@@ -19,8 +19,9 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   contact depth gets an empty list: out of contact either way). The lists are rebuilt
   (one brute-force numba pass over the triangles) when a slave has moved more than delta
   (0.5 mm in solver.rom.simulation; at least MOVING_DELTA on a surface that follows the
-  jaw while the jaw moves, whose motion counts against it too). Slaves are not skipped by distance: beyond a free
-  edge the term's penalty is not a function of the distance alone.
+  jaw while the jaw moves, whose motion counts against it too). Slaves are not skipped
+  by distance: beyond a free edge the term's penalty is not a function of the distance
+  alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
   refreshed in the term's own normals object on the rows the kernel reads (the candidate

@@ -379,14 +379,14 @@ class _Normals:
         """The part of the normals that a contact kernel reads on the triangles tris (k,)
         (their faces, edges and vertices), for an update where every vertex may move."""
         tris = np.unique(tris)
-        verts = np.unique(self.tris[tris])
-        ring = np.flatnonzero(np.isin(self.tris, verts).any(axis=1))
-        return self._part(np.union1d(ring, tris), verts, tris)
+        return self._part(None, np.unique(self.tris[tris]), tris)
 
     def _part(self, faces, verts, edges):
+        """faces None: the ring (every triangle with a vertex in verts; it holds edges)."""
         mark = np.zeros(len(self.vn), dtype=bool)
         mark[verts] = True
         ring = np.flatnonzero(mark[self.tris].any(axis=1))
+        faces = ring if faces is None else faces
         in_edges = np.isin(self._me[0], edges)
         return _NormalsPart(
             rows=(np.ascontiguousarray(faces, dtype=np.int64),
