@@ -8,6 +8,9 @@ from scipy.spatial import cKDTree
 
 from solver.face.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
 from solver.face.anatomy.generic import LEVELS, generic_face
+from solver.face.anatomy.generic_shape import (PHI_CORNER, SLIT_GAP, SLIT_OPEN,
+                                               SLIT_OPEN_DEPTH, SLIT_OPEN_REACH, Z_SLIT,
+                                               slit_opening)
 from solver.core.element import natural_coordinates
 from solver.core.errors import ParameterError
 
@@ -203,8 +206,30 @@ def test_slit_cuts_the_lips_apart(paper):
     assert touches_up.any() and not (touches_up & touches_lo).any()
     x = paper.mesh.nodes
     gap = x[up, 2] - x[lo, 2]                       # paired by construction order
-    assert np.all((gap >= 0.0) & (gap <= 1.0))
+    assert np.all((gap >= 0.0) & (gap <= SLIT_GAP + 2 * SLIT_OPEN + 1e-9))
+    skin = np.isin(up, paper.mesh.node_sets["outer_surface"])
+    assert np.all(gap[skin] <= 1.0)                 # closed lips touch on their outer part
     assert np.allclose(x[up, :2], x[lo, :2], atol=1.0)
+    inner = up[np.isin(up, paper.mesh.node_sets["inner_surface"])]
+    mid = inner[x[inner, 0] == 0.0]
+    assert len(mid) == 1
+    assert gap[np.flatnonzero(up == mid[0])[0]] == pytest.approx(SLIT_GAP + 2 * SLIT_OPEN)
+
+
+def test_slit_opening_only_opens_the_slit_at_the_skull_side():
+    phi = np.radians(np.linspace(-30.0, 30.0, 61))[:, None]
+    z = Z_SLIT + np.linspace(-12.0, 12.0, 97)[None, :]
+    for w in (0.0, 0.2):
+        dz = slit_opening(phi, z, w)
+        assert np.all(dz * np.sign(z - Z_SLIT) >= 0.0)          # away from the slit
+        assert np.abs(dz).max() <= SLIT_OPEN * (1.0 - w / SLIT_OPEN_DEPTH) + 1e-12
+        assert np.all(dz[np.abs(phi[:, 0]) >= PHI_CORNER] == 0.0)
+        assert np.all(np.diff(z + dz, axis=1) > 0.0)           # columns stay ordered
+    assert np.all(slit_opening(phi, z, SLIT_OPEN_DEPTH) == 0.0)
+    assert np.all(slit_opening(phi, z, 1.0) == 0.0)
+    assert slit_opening(0.0, Z_SLIT + 0.5 * SLIT_GAP, 0.0) == pytest.approx(SLIT_OPEN)
+    far = Z_SLIT + 0.5 * SLIT_GAP + SLIT_OPEN_REACH
+    assert slit_opening(0.0, far, 0.0) == 0.0 and slit_opening(0.0, -far + 2 * Z_SLIT, 0.0) == 0.0
 
 
 def test_contact_surfaces(paper):

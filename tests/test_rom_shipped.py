@@ -46,6 +46,19 @@ def test_the_stale_check_fails_when_a_physics_constant_of_the_key_changes(monkey
     assert stale and all("muscles" in why for _, why in stale)
 
 
+def test_the_stale_check_fails_when_the_generic_face_changes_shape(monkeypatch):
+    import solver.face.anatomy.generic_shape as shape
+    import solver.rom.store as store
+    monkeypatch.setattr(shape, "SLIT_OPEN", 0.5 * shape.SLIT_OPEN)
+    store.generic_geometry.cache_clear()
+    try:
+        stale = store.stale_models()
+    finally:
+        monkeypatch.undo()
+        store.generic_geometry.cache_clear()
+    assert stale and all("geometry" in why for _, why in stale)
+
+
 def test_the_stale_check_reports_a_broken_file(tmp_path):
     from solver.rom.store import stale_models
     (tmp_path / "rom-generic-x.npz").write_bytes(b"not a model")

@@ -23,6 +23,7 @@ basis size, captured energy, ECSW tolerance and residual, training runs and time
 calibration figures).
 """
 
+import functools
 import hashlib
 import json
 import os
@@ -53,17 +54,50 @@ class ModelNotTrained(FaceFMUError, LookupError):
     """No trained reduced model for a scene; names the training command."""
 
 
+@functools.cache
+def generic_geometry(level, half, rows):
+    """A fingerprint (str, 16 hex digits) of the generic face built from code: the
+    sha256 of its nodes (rounded to 1e-4 mm), bricks, node sets, fibres, contact and rigid
+    surfaces. The generic face has no file whose path could name it in a model's key, so
+    a change of its shape in code must change the key (and make a shipped model stale)."""
+    from solver.face.anatomy.load import load_anatomy
+    a = load_anatomy("generic", level, half, rows=rows)
+    h = hashlib.sha256()
+
+    def add(x):
+        h.update(np.ascontiguousarray(x).tobytes())
+    add(np.round(a.mesh.nodes, 4))
+    add(a.mesh.bricks)
+    for name in sorted(a.mesh.node_sets):
+        h.update(name.encode())
+        add(a.mesh.node_sets[name])
+    for f in a.fibres:
+        h.update(f"{f.muscle}{f.side}{f.n_cables}".encode())
+        add(np.round(f.points, 4))
+    for name in sorted(a.contact_surfaces):
+        h.update(name.encode())
+        add(a.contact_surfaces[name])
+    for name in sorted(a.rigid_surfaces):
+        h.update(name.encode())
+        add(np.round(a.rigid_surfaces[name].vertices, 4))
+        add(a.rigid_surfaces[name].triangles)
+    return h.hexdigest()[:16]
+
+
 def model_key(scene):
     """The fields of a solver.app.scene.Scene that a reduced model depends on (a dict)."""
     anatomy = scene.anatomy
     rows = scene.rows
+    geometry = {}
     if anatomy != "generic":
         anatomy = str(Path(anatomy).resolve())
     else:                             # a level's own rows, given or not, are one model
         from solver.face.anatomy.generic import LEVELS
         if rows == LEVELS[scene.level][1]:
             rows = None
-    return {"format": FORMAT, "physics": PHYSICS, "anatomy": anatomy, "level": scene.level if
+        geometry = {"geometry": generic_geometry(scene.level, bool(scene.half), rows)}
+    return {"format": FORMAT, "physics": PHYSICS, "anatomy": anatomy, **geometry,
+            "level": scene.level if
             scene.anatomy == "generic" else "-", "half": bool(scene.half),
             "rows": rows, "driven": list(scene.driven),
             "force_scale": {m: float(v) for m, v in sorted(scene.force_scale.items())

@@ -34,7 +34,9 @@ depend on the level: a finer level samples the same (phi, z, w) map more densely
 
 Slit. Between the mouth corners the row of the slit is two rows of nodes, one per lip,
 SLIT_GAP (0.4 mm) apart at the mid-line and joined at the corners: the lips separate and
-touch. Lip edges are free.
+touch. Lip edges are free. Through the inner layer the slit opens towards the skull
+(generic_shape.slit_opening): the inner lip edges stand 2.4 mm apart on the mid-line, and
+closed lips touch on their outer part.
 
 Layers. Each surface cell is extruded through the thickness into three layers of bricks:
 'layer_inner' (w 0-0.45) and 'layer_middle' (0.45-0.82), the hypodermis where the muscles
@@ -106,6 +108,8 @@ def _extrude(grid, w):
     bricks (nc n, 8), brick id = row * nc + cell."""
     ns = len(grid.phi)
     nodes = np.concatenate([generic_shape.position(grid.phi, grid.z, wk) for wk in w])
+    nodes[:, 2] += np.concatenate([generic_shape.slit_opening(grid.phi, grid.z, wk)
+                                   for wk in w])
     cells = grid.cells[:, [1, 0, 3, 2]]    # I J K L counter-clockwise from the skin; K = L
     bricks = np.concatenate([np.hstack([cells + k * ns, cells + (k + 1) * ns])
                              for k in range(len(w) - 1)])

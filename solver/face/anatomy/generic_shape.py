@@ -34,6 +34,9 @@ PHI_CORNER = np.radians(23.5)   # mouth corners
 PHI_MAX = np.radians(111.63)    # back edge of the face, towards the ears
 ROLL_UPPER = 6.0          # height of the upper vermilion roll's crest above the slit (mm)
 ROLL_LOWER = 7.0          # depth of the lower vermilion roll's crest below the slit (mm)
+SLIT_OPEN = 1.0           # extra opening of each lip's slit edge at the skull side (mm)
+SLIT_OPEN_DEPTH = 0.45    # w where the opening has faded out (the inner layer's top)
+SLIT_OPEN_REACH = 6.0     # height over which it fades out above and below the slit (mm)
 
 _APEX = PchipInterpolator(   # z -> y of the inner surface on the mid-line
     [-125.0, -120.0, -112.0, -104.0, -96.0, -88.0, -80.0, -72.0, -64.0, -57.0, -40.0,
@@ -87,6 +90,29 @@ def slit_gap(phi):
     """Lip gap (mm) along the slit, SLIT_GAP at the mid-line, 0 at the corners (k,)."""
     r = np.abs(phi) / PHI_CORNER
     return SLIT_GAP * np.clip(1.0 - r * r, 0.0, None)
+
+
+def slit_opening(phi, z, w):
+    """Shift in z (mm) of the tissue point (phi, z, w) that opens the slit towards the
+    skull, broadcast:
+
+        dz = sign(z - r) SLIT_OPEN (1 - (phi/phi_c)^2)^2 max(0, 1 - w/SLIT_OPEN_DEPTH)
+             (1 - smoothstep((|z - r| - g) / SLIT_OPEN_REACH))
+
+    r the slit row, g half the slit gap. Closed lips touch on their outer part, and
+    their inner edges stand 2 SLIT_OPEN + SLIT_GAP apart on the mid-line, so that pressed
+    and sheared lips do not meet edge to edge (two convex edges passing each other one
+    way or the other). 0 at the skin side (w >= SLIT_OPEN_DEPTH), at the mouth corners
+    and beyond, and SLIT_OPEN_REACH away from the slit; linear in w, so a column's
+    extra nodes through the thickness do not change its volume.
+    """
+    p = np.abs(phi)
+    r, g = row_line(phi), 0.5 * slit_gap(phi)
+    d = z - r
+    lip = np.clip(1.0 - (p / PHI_CORNER) ** 2, 0.0, None) ** 2
+    depth = np.clip(1.0 - np.asarray(w) / SLIT_OPEN_DEPTH, 0.0, None)
+    fade = 1.0 - smoothstep((np.abs(d) - g) / SLIT_OPEN_REACH)
+    return np.sign(d) * SLIT_OPEN * lip * depth * fade
 
 
 def inner_curve(phi, z):
