@@ -112,7 +112,11 @@ def respond(fmu_path, samples, hold):
         for _ in range(int(round(hold / STEP))):
             jaw = x[len(NAMES)] * JAW_SCALE * min(1.0, (t + STEP) / JAW_RAMP)
             fmu.setReal([vr["jaw_opening"]], [jaw])
-            fmu.doStep(t, STEP)
+            try:
+                fmu.doStep(t, STEP)
+            except Exception as exc:   # fmpy's exception does not pickle out of a worker
+                raise RuntimeError(f"sample {np.round(x, 3).tolist()} (activations, jaw): "
+                                   f"the step from t = {t:.3f} s failed: {exc}") from None
             t += STEP
             trajectory.append(fmu.getReal([vr[o] for o in OUTPUTS]))
         out.append(trajectory)
