@@ -131,8 +131,12 @@ def test_a_look_at_the_state_leaves_the_run_as_it_was(trained):
 def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatch):
     """The reduced contact's deepest penetration (the kernels' gaps at the last force
     evaluation) is the one measured outside the model (solver.validation.stability.Probe,
-    on the reconstructed displacement) to Newton's last update; past the contact
-    tolerance the step is redone by the full model, with a warning that names it."""
+    on the reconstructed displacement); past the contact tolerance the step is redone by
+    the full model, with a warning that names it. The kernel measures to the master's
+    triangles, which stay within a 32nd of a quad's warp of its bilinear face, where the
+    probe measures: pressed by OOP, the upper lip's inner slit face next to the mid-line
+    warps by 0.5 mm, and the lower lip's inner slit node pressed into it is 0.0096 mm
+    from the kernel's triangle and 0.0170 mm from the bilinear face; hence 8e-3 mm."""
     import solver.rom.simulation as rs
     from solver.validation.stability import Probe
     rom = open_simulation(trained["scene"], fidelity="realtime", rom_model=trained["path"],
@@ -143,7 +147,7 @@ def test_contact_penetration_beyond_the_tolerance_falls_back(trained, monkeypatc
     for k in range(1, 7):                                       # lips pressed by OOP
         assert rom.step(0.005 * k).converged and rom.mode == "rom"
         lips, teeth = probe.penetrations(rom.u)
-        assert rom.stepper.penetration == pytest.approx(max(lips, teeth), abs=2e-3)
+        assert rom.stepper.penetration == pytest.approx(max(lips, teeth), abs=8e-3)
         deepest = max(deepest, rom.stepper.penetration)
     assert 0.0 < deepest < rs.TOLERANCE
     monkeypatch.setattr(rs, "TOLERANCE", deepest / 2)          # the same run, a tighter limit
