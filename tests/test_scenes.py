@@ -93,7 +93,7 @@ def test_missing_scene_file_is_named(tmp_path):
 
 def _short_run(**effects):
     scene = parse_scene({"muscles": {"driven": ["OOP"]}, **effects,
-                         "scene": {"duration": 0.01},
+                         "scene": {"duration": 0.005},
                          "outputs": {"interval": 0.005, "record": ["lip_protrusion"]},
                          "schedule": [{"muscle": "OOP", "kind": "step", "time": 0.0,
                                        "value": 0.8}]})
