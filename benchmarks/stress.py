@@ -214,7 +214,7 @@ def markdown(rows, command, notes, problems, wall, part=None, started=None):
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
              "had other work). Cases and checks: `solver/validation/stability.py`; "
-             "the quick versions run in CI (`tests/test_stability.py`).", ""]
+             "their quick versions are `tests/test_stability.py`.", ""]
     legend = [
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "
              "the smallest over all steps); lip outputs within bounds (aperture >= 0); "
