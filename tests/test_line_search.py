@@ -147,7 +147,8 @@ class _Jump:
 def test_newton_stuck_at_a_jump_fails_at_once_not_after_the_stall_window():
     """From near the jump Newton's first search carries the node to it, where every
     direction's search ends at s ~ 0; two such searches in a row fail the call (the
-    caller cuts back) instead of the stall test's eight iterations."""
+    caller cuts back) instead of the stall test's eight iterations, naming the node
+    where the residual jumps."""
     from solver.core.linsolve import SuperLU
     from solver.core.newton import newton
     from solver.core.system import System
@@ -159,5 +160,6 @@ def test_newton_stuck_at_a_jump_fails_at_once_not_after_the_stall_window():
         assert u is None
         reports[after] = rep
     assert reports[2].reason.startswith("stuck")
+    assert "largest at node 0 (0.5 N)" in reports[2].reason     # where the force jumps
     assert reports[100].reason.startswith("stalled")
     assert reports[2].iterations <= 4 < 8 <= reports[100].iterations

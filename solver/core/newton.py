@@ -504,13 +504,47 @@ def _newton(system, u0, targets, lin, opts, tag):
         stuck = stuck + 1 if s <= opts.stuck_fraction and not balanced else 0
         if stuck >= opts.stuck_after:
             report.reason = (f"stuck: {stuck} line searches in a row cut the step to "
-                             f"s <= {opts.stuck_fraction:g} (a jump in the residual)")
+                             f"s <= {opts.stuck_fraction:g} (a jump in the residual"
+                             f"{_jump_sites(_Line(system, u, du), line.residual_at(s))})")
             return None, None, report
         r = line.residual_at(s) if opts.reuse else None
         data = None
         if r is None:
             r, data = _evaluate(system, u, not opts.reuse)
     return None, None, report
+
+
+def _jump_sites(line, r0, count=3, bisections=40):
+    """Where the residual jumps along line (from its u, whose residual is r0, or None)
+    towards the full step: bisection on g(s) = du . r(u + s du) between s = 0 and 1 to a
+    bracket of width 2^-bisections, then ", largest at node i (x N), ..." for the `count`
+    nodes whose free DOFs' residual differs most across it ("" where g does not change
+    sign, or a state is not admissible). Called when Newton fails stuck, to name the
+    nodes of the jump (a contact slave switching faces, say)."""
+    free = line.system.free
+    r0 = line(0.0) if r0 is None else r0
+    r1 = line(1.0)
+    g0, g1 = _g(line.du, r0), _g(line.du, r1)
+    if g0 is None or g1 is None or g0 * g1 > 0:
+        return ""
+    lo, hi = (0.0, r0, g0), (1.0, r1, g1)
+    for _ in range(bisections):
+        mid = 0.5 * (lo[0] + hi[0])
+        r = line(mid)
+        g = _g(line.du, r)
+        if g is None:
+            return ""
+        if g * lo[2] > 0:
+            lo = (mid, r, g)
+        else:
+            hi = (mid, r, g)
+    d = np.zeros(len(r0))
+    d[free] = np.abs(hi[1][free] - lo[1][free])
+    per_node = np.sqrt((d.reshape(-1, 3) ** 2).sum(axis=1))
+    top = [int(i) for i in np.argsort(per_node)[::-1][:count] if per_node[i] > 1e-12]
+    if not top:
+        return ""
+    return ", largest at " + ", ".join(f"node {i} ({per_node[i]:.3g} N)" for i in top)
 
 
 def _slow(rn, prev, tol, it, opts):
