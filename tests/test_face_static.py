@@ -10,8 +10,9 @@ from solver.face.face_model import FaceModel
 
 REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
                                 / ".." / "shared" / "data" / "reference-face"))
-ANATOMIES = ["generic", pytest.param("reference", marks=pytest.mark.skipif(
-    not REFERENCE.is_dir(), reason=f"no reference face at {REFERENCE}"))]
+# the reference face's case is slow (out of CI, whose run has the generic face's)
+ANATOMIES = ["generic", pytest.param("reference", marks=[pytest.mark.slow, pytest.mark.skipif(
+    not REFERENCE.is_dir(), reason=f"no reference face at {REFERENCE}")])]
 
 
 def _spec(name):

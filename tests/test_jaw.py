@@ -148,6 +148,7 @@ def test_twelve_mm_of_incisor_opening_opens_the_generic_lips_by_six_mm():
     assert teeth <= CONTACT_TOLERANCE and lips <= CONTACT_TOLERANCE
 
 
+@pytest.mark.slow                   # the generic face's twin runs in CI; examples/jaw_pictures.py
 @pytest.mark.skipif(REFERENCE_FACE is None, reason="reference face data absent")
 def test_twelve_mm_of_incisor_opening_opens_the_reference_lips_by_six_mm():
     sim = Simulation("default", fidelity="balanced", anatomy=str(REFERENCE_FACE))
