@@ -1,6 +1,7 @@
 """Train the realtime (reduced-order) model of a scene, and measure it on held-out gestures.
 
     python benchmarks/rom_train.py [--scene SCENE] [--runs 26] [--jaw-runs 12]
+                                   [--phrase-runs 48] [--phrase-duration 0.2]
                                    [--duration 0.15] [--energy 3e-4] [--jaw-energy 1e-5]
                                    [--ecsw-tol 0.1] [--max-wall 30]
                                    [--out FILE.npz]
@@ -53,6 +54,7 @@ def train_main(args):
     scene = load(args.scene)
     kw = dict(runs=args.runs, duration=args.duration, energy=1.0 - args.energy,
               jaw_energy=1.0 - args.jaw_energy, jaw_runs=args.jaw_runs,
+              phrase_runs=args.phrase_runs, phrase_duration=args.phrase_duration,
               ecsw_tol=args.ecsw_tol, out=args.out, seed=args.seed,
               max_wall=args.max_wall, budget=args.budget,
               provenance={"scene": args.scene, "revision": commit(),
@@ -107,6 +109,9 @@ def main(argv=None):
     ap.add_argument("--jaw-energy", type=float, default=1e-5,
                     help="POD energy left out of the jaw runs' remainder (solver.rom.train)")
     ap.add_argument("--jaw-runs", type=int, default=12, help="snapshot runs moving the jaw")
+    ap.add_argument("--phrase-runs", type=int, default=48,
+                    help="speech-like snapshot runs (solver.rom.train.random_phrase)")
+    ap.add_argument("--phrase-duration", type=float, default=0.2, help="s per phrase run")
     ap.add_argument("--ecsw-tol", type=float, default=0.1, help="ECSW relative tolerance")
     ap.add_argument("--seed", type=int, default=1, help="of the random activation patterns")
     ap.add_argument("--budget", type=float, help="s: snapshot runs not finished by then "

@@ -229,3 +229,29 @@ def test_a_levels_own_rows_given_or_not_name_the_same_model():
     assert model_key(scene.with_overrides(rows=2)) != model_key(scene)
     fine = scene.with_overrides(level="fine")
     assert model_key(fine.with_overrides(rows=2)) == model_key(fine)
+
+
+def test_phrase_runs_are_valid_speech_like_patterns_and_reproducible():
+    """solver.rom.train.random_phrase: increasing times within the run, activations in
+    [0, 1], the jaw's opening within its range, more than one muscle taking part over each
+    run of this seed (a gesture taking over from another), the same tasks from the same seed."""
+    from solver.face.jaw import JAW_RANGES
+    from solver.rom.train import snapshot_tasks
+    scene = Scene(name="t", driven=("OOP", "RIS", "DLI", "LLSAN", "BUC", "ZYG"))
+    tasks = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=12)
+    phrases = [t for t in tasks if "phrase" in t["label"]]
+    assert len(tasks) == 15 and len(phrases) == 12
+    for i, t in enumerate(phrases):
+        assert t["duration"] == 0.2
+        names = [s.muscle for s in t["schedules"]]
+        assert ("jaw_opening" in names) == (i % 3 == 2) == t["label"].startswith("jaw")
+        assert len([m for m in names if m in scene.driven]) >= 2
+        for s in t["schedules"]:
+            assert s.times[0] == 0.0 and s.times[-1] == 0.2 and s.values[0] == 0.0
+            assert np.all(np.diff(s.times) > 0)
+            hi = JAW_RANGES["jaw_opening"][1] if s.muscle == "jaw_opening" else 1.0
+            assert 0.0 <= min(s.values) and max(s.values) <= hi and max(s.values) > 0
+    again = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=12)
+    assert repr([t["schedules"] for t in again]) == repr([t["schedules"] for t in tasks])
+    no_jaw = snapshot_tasks(scene, 2, 0.15, 0.005, 1, phrase_runs=3)
+    assert not any(s.muscle == "jaw_opening" for t in no_jaw for s in t["schedules"])

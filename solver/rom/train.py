@@ -9,9 +9,17 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
    at U(0.1, 1). Where the face has a jaw, `jaw_runs` more runs move it (random_jaw:
    the opening ramping to U(5, 20) deg, the protrusion, one run in three, to U(-1, 10)
-   mm: solver.face.jaw.JAW_RANGES) with one to three muscles at U(0.1, 1); the poses
-   covered are the model's "jaw_envelope". A run that takes longer than max_wall keeps
-   the snapshots it has.
+   mm: solver.face.jaw.JAW_RANGES) with one to three muscles at U(0.1, 1). Then
+   `phrase_runs` speech-like runs of `phrase_duration` s (`random_phrase`, their own
+   random stream `phrase_seed`): two or three phases, each a new target (one to five
+   muscles at U(0.1, 1), each other muscle back to 0 or, one time in three, held),
+   reached over U(0.02, 0.08) s; every third phrase moves the jaw's opening with its
+   phases as well. Single ramps from rest leave out what speech does: one gesture
+   taking over from another while the tissue still moves (without the phrases, a
+   held-out open-then-round gesture came out several times further off than its states
+   lie from the basis: docs/dev-notes/realtime-balanced.md).
+   The poses covered are the model's "jaw_envelope". A run that takes longer than
+   max_wall keeps the snapshots it has.
    Runs are independent tasks: through a dask client (solver.sweep.Sweep,
    `snapshot_task`) or in this process.
 2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy,
@@ -23,8 +31,8 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    basis, u = V V^T u_j + (u_j on the prescribed DOFs: the jaw's lifting), with their
    activations (tissue + stiffening per brick).
 4. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping).
-5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns
-   and the first jaw run;
+5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns,
+   the first jaw run and the first phrase of each kind (without and with the jaw);
    the threshold is `trust_factor` times the largest full-order residual rho met
    (solver.rom.simulation), at least `trust_floor`. The largest displacement and lip
    output differences to the full runs of those patterns are stored in meta.
@@ -107,6 +115,39 @@ def random_jaw(rng, duration, opening=(0.0, JAW_RANGES["jaw_opening"][1])):
     return tuple(out)
 
 
+def random_phrase(rng, muscles, duration, jaw=False):
+    """A speech-like activation pattern (module docstring, step 1): Schedule tuple over
+    the muscles (and jaw_opening, with jaw) that leave 0 at some time."""
+    muscles = list(muscles)
+    names = muscles + (["jaw_opening"] if jaw else [])
+    starts = np.sort(rng.uniform(0.0, 0.7 * duration, int(rng.integers(2, 4))))
+    starts[0] = rng.uniform(0.0, 0.03)
+    level = {m: 0.0 for m in names}
+    times = {m: [0.0] for m in names}
+    values = {m: [0.0] for m in names}
+    for t0 in starts:
+        t1 = min(t0 + rng.uniform(0.02, 0.08), duration)
+        chosen = set(rng.choice(muscles, int(rng.integers(1, 6)), replace=False))
+        for m in names:
+            if m == "jaw_opening":
+                new = (rng.uniform(0.0, JAW_RANGES[m][1]) if rng.random() < 0.7
+                       else level[m])
+            elif m in chosen:
+                new = rng.uniform(0.1, 1.0)
+            else:
+                new = level[m] if rng.random() < 0.3 else 0.0
+            times[m] += [max(t0, times[m][-1]), t1]
+            values[m] += [level[m], new]
+            level[m] = new
+    out = []
+    for m in names:
+        times[m].append(duration)
+        values[m].append(values[m][-1])
+        if max(values[m]) > 0:
+            out.append(_pwl(m, times[m], values[m]))
+    return tuple(out)
+
+
 def drive(sim, schedules, duration, interval, on_record=None, max_wall=None):
     """Step sim through schedules (Schedule tuple) to duration at interval; lip outputs
     (list of dicts with time) at every interval (t = 0 included). max_wall (s): stop
@@ -166,9 +207,11 @@ def snapshot_task(task, scene, sim=None):
     return out
 
 
-def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_runs=0):
+def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_runs=0,
+                   phrase_runs=0, phrase_duration=0.2, phrase_seed=7):
     """The training runs' tasks (module docstring): `runs` muscle patterns, then
-    `jaw_runs` that move the jaw as well."""
+    `jaw_runs` that move the jaw as well, then `phrase_runs` phrases (of
+    phrase_duration s; every third moves the jaw where the face has one)."""
     rng = np.random.default_rng(seed)
     driven = list(scene.driven)
     order = list(rng.permutation(driven))
@@ -182,6 +225,13 @@ def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_run
         tasks.append({"label": f"jaw pattern {i}", "schedules": sched})
     for t in tasks:
         t.update(duration=duration, interval=interval, max_wall=max_wall)
+    rng = np.random.default_rng(phrase_seed)
+    for i in range(phrase_runs):
+        jaw = jaw_runs > 0 and i % 3 == 2
+        tasks.append({"label": f"{'jaw ' if jaw else ''}phrase {i}",
+                      "schedules": random_phrase(rng, driven, phrase_duration, jaw),
+                      "duration": phrase_duration, "interval": interval,
+                      "max_wall": max_wall})
     return tasks
 
 
@@ -312,7 +362,8 @@ def reduced_matrices(sim, V):
 def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client=None,
           energy=1.0 - 1e-6, r_max=60, ecsw_tol=1e-2, ecsw_states=150, calibration_runs=3,
           trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
-          sim_only=False, budget=None, jaw_runs=12, provenance=None, jaw_energy=None):
+          sim_only=False, budget=None, jaw_runs=12, provenance=None, jaw_energy=None,
+          phrase_runs=0, phrase_duration=0.2, phrase_seed=7):
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
     runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept).
@@ -326,7 +377,8 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     scene = sim.scene
     base = scene.with_overrides(schedules=())
     jaw_runs = jaw_runs if sim.face.jaw is not None else 0
-    tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall, jaw_runs)
+    tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall, jaw_runs,
+                           phrase_runs, phrase_duration, phrase_seed)
     from solver.rom.store import cache_dir, key_hash
     folder = cache_dir() / "snapshots" / key_hash(model_key(base))
     results = collect(base, tasks, client, progress, sim, None if sim_only else folder,
@@ -359,12 +411,15 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
             "basis_size": r, "jaw_modes": r - r1, "runs_used": len(results),
             "captured_energy": captured_energy(sigma, r1), "snapshots": int(U.shape[1]),
             "runs": runs, "jaw_runs": jaw_runs, "jaw_envelope": jaw_envelope(tasks),
+            "phrase_runs": phrase_runs, "phrase_duration": phrase_duration,
+            "phrase_seed": phrase_seed,
             "duration": duration, "interval": interval, "seed": seed,
             "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
             "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
             "pod_s": t_pod - t_start - t_snap, "ecsw_s": t_ecsw - t_pod}
-    pick = list(range(min(calibration_runs, len(tasks))))      # and a jaw run, if any
-    pick += [i for i, t in enumerate(tasks) if t["label"].startswith("jaw")][:1]
+    pick = list(range(min(calibration_runs, len(tasks))))      # and a jaw run, if any,
+    for kind in ("jaw pattern", "phrase", "jaw phrase"):        # and the first phrases
+        pick += [i for i, t in enumerate(tasks) if t["label"].startswith(kind)][:1]
     calib = calibrate(scene, (arrays, meta), [tasks[i] for i in pick],
                       [results[i] for i in pick], sim)
     arrays["trust_threshold"] = np.array([max(trust_factor * calib["rho_max"], trust_floor)])
