@@ -87,11 +87,12 @@ def accuracy_main(args):
     report(rows, cols, args.csv)
     if args.md:
         from solver.app.provenance import command, stamp
-        with open(args.md, "w") as fh:
-            fh.write(f"Held-out gestures, reduced (1 ms steps) against full order (5 ms): "
-                     f"`{command('benchmarks/rom_train.py')}`, {stamp()}; model: "
-                     f"{m['basis_size']} modes ({m.get('jaw_modes', 0)} of them from the "
-                     f"jaw runs), {m['bricks_selected']} of {m['bricks_total']} bricks.\n\n")
+        head = (f"Held-out gestures, reduced (1 ms steps) against full order (5 ms): "
+                f"`{command('benchmarks/rom_train.py')}`, {stamp()}; model: "
+                f"{m['basis_size']} modes ({m.get('jaw_modes', 0)} of them from the "
+                f"jaw runs), {m['bricks_selected']} of {m['bricks_total']} bricks.\n\n")
+        with open(args.md, "w") as fh:          # stamped before the file is emptied
+            fh.write(head)
             fh.write("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n")
             for r in rows:
                 fh.write("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float)
