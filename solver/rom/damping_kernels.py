@@ -6,8 +6,9 @@ B of dN/dx, D0 the law's tangent at C = 1 (per brick, solver.rom.online.small_st
 and, for mean dilatation, + U''(1) / V dv dv^T with dv = sum_g w det F dN/dx.
 
 * ``damping_geometry``: dN/dx, w det F and dv of the cubature's bricks on X + V q (once per
-  substep; brick_forces_r's matrix-free damping force and passive_stiffness_r use them);
-* ``passive_stiffness_r``: the reduced matrix sum_e w_e V_e^T K_n,e V_e on that shape (the
+  substep; brick_forces_r's matrix-free damping force and passive_stiffness_kv use them);
+* ``passive_stiffness_kv``: w_e K_n,e V_e per brick, whose product with V gives the
+  reduced matrix sum_e w_e V_e^T K_n,e V_e on that shape (the
   damping part of the Newton tangent);
 * ``passive_apply``: the full-order product K_n du, without element matrices (the trust
   check's residual, solver.rom.trust).
@@ -63,17 +64,17 @@ def damping_geometry(q, Ve, le, dndX, wgp, ue, dxn, wn, dvn):
 
 
 @njit(cache=True, fastmath=_FM)
-def passive_stiffness_r(Ve, w, dxn, wn, dvn, D0, kvol, form, kr):
-    """kr (r, r) = sum_e w_e V_e^T K_n,e V_e: the cubature's passive small-strain stiffness
-    on the shape of damping_geometry (dxn, wn, dvn), D0 (k, 6, 6), kvol (k,) (see
-    passive_apply); K_n,e = sum_g wn B^T D0 B (+ kvol / V dv dv^T for form 0), B the
-    small-strain B of dN/dx."""
+def passive_stiffness_kv(Ve, w, dxn, wn, dvn, D0, kvol, form, kv):
+    """kv (k, 24, r) = w_e K_n,e V_e per brick of the cubature, so that its passive
+    small-strain stiffness on the shape of damping_geometry (dxn, wn, dvn) is the one
+    product sum_e V_e^T kv_e = Ve.reshape(-1, r).T @ kv.reshape(-1, r) (a BLAS matrix
+    product, solver.rom.online.OnlineOperator.damping_tangent). D0 (k, 6, 6), kvol (k,)
+    (see passive_apply); K_n,e = sum_g wn B^T D0 B (+ kvol / V dv dv^T for form 0), B
+    the small-strain B of dN/dx."""
     k, _, r = Ve.shape
-    kr[:, :] = 0.0
     ke = np.empty((24, 24))
     B = np.zeros((6, 24))
     DB = np.empty((6, 24))
-    kv = np.empty((24, r))
     for e in range(k):
         ke[:, :] = 0.0
         vol = 0.0
@@ -112,22 +113,14 @@ def passive_stiffness_r(Ve, w, dxn, wn, dvn, D0, kvol, form, kr):
         for c1 in range(24):
             for c2 in range(c1 + 1, 24):
                 ke[c2, c1] = ke[c1, c2]
-        for c in range(24):
-            for j in range(r):
-                kv[c, j] = 0.0
-            for d in range(24):
-                x = ke[c, d]
-                for j in range(r):
-                    kv[c, j] += x * Ve[e, d, j]
         we = w[e]
         for c in range(24):
-            for i in range(r):
-                x = we * Ve[e, c, i]
-                for j in range(i, r):
-                    kr[i, j] += x * kv[c, j]
-    for i in range(r):
-        for j in range(i + 1, r):
-            kr[j, i] = kr[i, j]
+            for j in range(r):
+                kv[e, c, j] = 0.0
+            for d in range(24):
+                x = we * ke[c, d]
+                for j in range(r):
+                    kv[e, c, j] += x * Ve[e, d, j]
 
 
 @njit(cache=True, fastmath=_FM)

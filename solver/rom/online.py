@@ -13,7 +13,7 @@ evaluated fast (same math; tests/test_rom_online.py compares the two).
 * damping (beta K_n, K_n on the shape at the start of the substep, as the full model):
   matrix-free, in the bricks' kernel, on the cubature's bricks (prepare_damping once per
   substep: their dN/dx on that shape); the damping matrix itself (for the tangent only)
-  by solver.rom.damping_kernels.passive_stiffness_r on that shape;
+  by solver.rom.damping_kernels.passive_stiffness_kv on that shape;
 * activations: the stiffening factors s_e and the cables' active strains are computed
   once per substep (set_activation), not per iteration.
 
@@ -26,7 +26,7 @@ import numpy as np
 
 from solver.core.kernels.material_point import point_response
 from solver.rom.contact import ReducedContact
-from solver.rom.damping_kernels import damping_geometry, passive_stiffness_r
+from solver.rom.damping_kernels import damping_geometry, passive_stiffness_kv
 from solver.rom.kernels import brick_tangents_split
 from solver.rom.online_kernels import brick_forces_r, cable_forces_r
 
@@ -69,6 +69,8 @@ class OnlineOperator:
         self.D0, self.kvol = small_strain_tangents(op.params, op.form)
         self.dxn, self.wn, self.dvn = np.zeros((k, 8, 8, 3)), np.zeros((k, 8)), np.zeros((k, 24))
         self.ue_n = np.zeros((k, 24))
+        self._kv = np.zeros((k, 24, r))                     # damping_tangent's w_e K_n,e V_e
+        self._ve2 = np.ascontiguousarray(op.Ve).reshape(k * 24, r)
         self.bd, self.q_n = 0.0, np.zeros(r)
         # bricks that stiffen with some muscle: their unit-stiffening tangents apart
         stiff = np.flatnonzero(op.sweight.max(axis=1) > 0) if op.stiffening is not None \
@@ -140,10 +142,11 @@ class OnlineOperator:
     def damping_tangent(self):
         """(r, r) V^T K_n V by the cubature on the shape of the last prepare_damping (a new
         array; as ReducedOperator.passive_stiffness on that shape)."""
-        op, K = self.op, np.empty((self.r, self.r))
-        passive_stiffness_r(op.Ve, op.weights, self.dxn, self.wn, self.dvn, self.D0,
-                            self.kvol, op.form, K)
-        return K
+        op = self.op
+        passive_stiffness_kv(op.Ve, op.weights, self.dxn, self.wn, self.dvn, self.D0,
+                             self.kvol, op.form, self._kv)
+        K = self._ve2.T @ self._kv.reshape(-1, self.r)
+        return 0.5 * (K + K.T)
 
     def stiffened_tangent(self):
         """(r, r) the bricks' tangent of the last brick_tangent() at the activations of
