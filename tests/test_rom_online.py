@@ -208,6 +208,22 @@ def test_short_lists_distance_is_the_contact_kernels(rng):
         assert _triangle_d2(p, xv, 0, 1, 2) == pytest.approx(d2, rel=1e-10, abs=1e-13)
 
 
+def test_newton_correction_from_lu_factors_solves_the_system(rng):
+    """lu_solve_small on scipy's getrf factors: -J^-1 b, with row swaps (a matrix whose
+    leading entry is tiny forces them), against numpy's solver."""
+    import scipy.linalg as sla
+    from solver.rom.online_kernels import lu_solve_small
+    for r in (1, 7, 40):
+        J = rng.normal(size=(r, r)) + r * np.eye(r)
+        J[0, 0] = 1e-9
+        b = rng.normal(size=r)
+        lu, piv = sla.lu_factor(J)
+        assert r == 1 or np.any(piv != np.arange(r))
+        x = np.empty(r)
+        lu_solve_small(lu, piv.astype(np.int64), b, x)
+        assert np.allclose(x, -np.linalg.solve(J, b), rtol=1e-10, atol=1e-12)
+
+
 def test_a_rolled_back_jaw_step_repeats_exactly(trained_jaw):
     # trust off: the reduced steps themselves must repeat (the tiny model lets the lips
     # 0.07 mm into the teeth as the jaw opens, which would hand the run to the full model)

@@ -6,7 +6,7 @@ B of dN/dx, D0 the law's tangent at C = 1 (per brick, solver.rom.online.small_st
 and, for mean dilatation, + U''(1) / V dv dv^T with dv = sum_g w det F dN/dx.
 
 * ``damping_geometry``: dN/dx, w det F and dv of the cubature's bricks on X + V q (once per
-  substep; brick_forces_r's matrix-free damping force and passive_stiffness_kv use them);
+  substep; brick_forces_nodal's matrix-free damping force and passive_stiffness_kv use them);
 * ``passive_stiffness_kv``: w_e K_n,e V_e per brick, whose product with V gives the
   reduced matrix sum_e w_e V_e^T K_n,e V_e on that shape (the
   damping part of the Newton tangent);
@@ -24,19 +24,20 @@ _FM = {"contract", "reassoc", "arcp"}          # no nnan / ninf: NaN and inf che
 
 
 @njit(cache=True, fastmath=_FM)
-def damping_geometry(q, Ve, le, dndX, wgp, ue, dxn, wn, dvn):
-    """The shape X + V q + L of the selected bricks for their damping (le (k, 24) the
-    lifting L on them): fills ue (k, 24) their displacements V_e q + le_e, dxn (k, 8, 8, 3)
-    dN/dx = dN/dX adj F / det F, wn (k, 8) w det F and dvn (k, 24) sum_g wn dN/dx. Returns
-    the smallest det F (a det F <= 0 or NaN at once)."""
-    k, _, r = Ve.shape
+def damping_geometry(u, conn, dndX, wgp, ue, dxn, wn, dvn):
+    """The shape X + u of the selected bricks for their damping (u (b, 3) the displacements
+    V q + L of their nodes, conn (k, 8) the bricks' local node indices into u): fills ue
+    (k, 24) the bricks' displacements, dxn (k, 8, 8, 3) dN/dx = dN/dX adj F / det F, wn
+    (k, 8) w det F and dvn (k, 24) sum_g wn dN/dx. Returns the smallest det F (a det F <= 0
+    or NaN at once)."""
+    k = conn.shape[0]
     jmin = np.inf
     for e in range(k):
+        for a in range(8):
+            n = conn[e, a]
+            for i in range(3):
+                ue[e, 3 * a + i] = u[n, i]
         for c in range(24):
-            acc = 0.0
-            for j in range(r):
-                acc += Ve[e, c, j] * q[j]
-            ue[e, c] = acc + le[e, c]
             dvn[e, c] = 0.0
         for g in range(8):
             G = dndX[e, g]

@@ -1,8 +1,9 @@
 r"""The online reduced operator: solver.rom.reduced.ReducedOperator's forces and tangents,
 evaluated fast (same math; tests/test_rom_online.py compares the two).
 
-* bricks: force-only kernel (solver.rom.online_kernels.brick_forces_r; tissue and
-  stiffening in one pass); the tangent split into the tissue's and each brick's unit
+* bricks: force-only kernel (solver.rom.online_kernels.brick_forces_nodal; tissue and
+  stiffening in one pass) on the b distinct nodes of the cubature's bricks, between two
+  BLAS products: u_b = V_b q + L_b before, f_r = V_b^T f_b after; the tangent split into the tissue's and each brick's unit
   stiffening (solver.rom.kernels.brick_tangents_split), so that a tangent built on one
   shape follows the activations exactly (kt + sum_e s_e(a) ks_e);
 * cables: one numba pass (cable_forces_r) over D_c (c, 3, r) projected once;
@@ -28,7 +29,7 @@ from solver.core.kernels.material_point import point_response
 from solver.rom.contact import ReducedContact
 from solver.rom.damping_kernels import damping_geometry, passive_stiffness_kv
 from solver.rom.kernels import brick_tangents_split
-from solver.rom.online_kernels import brick_forces_r, cable_forces_r
+from solver.rom.online_kernels import brick_forces_nodal, cable_forces_r
 
 
 def small_strain_tangents(params, form):
@@ -69,6 +70,13 @@ class OnlineOperator:
         self.D0, self.kvol = small_strain_tangents(op.params, op.form)
         self.dxn, self.wn, self.dvn = np.zeros((k, 8, 8, 3)), np.zeros((k, 8)), np.zeros((k, 24))
         self.ue_n = np.zeros((k, 24))
+        # the cubature's distinct nodes: V_b (3 b, r), the bricks' local connectivity
+        conn = op.mesh.bricks[op.bricks]
+        self.bnodes, local = np.unique(conn, return_inverse=True)
+        self.lconn = np.ascontiguousarray(local.reshape(conn.shape), dtype=np.int64)
+        self.Vb = np.ascontiguousarray(op.Vn[self.bnodes].reshape(-1, r))
+        self.fnod = np.zeros((len(self.bnodes), 3))
+        self._lift = (None, None, None, None)        # (op.L_n, L_b,n, L_b, op.L)
         self._kv = np.zeros((k, 24, r))                     # damping_tangent's w_e K_n,e V_e
         self._ve2 = np.ascontiguousarray(op.Ve).reshape(k * 24, r)
         self.bd, self.q_n = 0.0, np.zeros(r)
@@ -88,8 +96,18 @@ class OnlineOperator:
         if not bd:
             return 1.0
         op = self.op
-        return damping_geometry(q_n, op.Ve, op.le_n, op.dndX, op.wgp, self.ue_n, self.dxn,
-                                self.wn, self.dvn)
+        return damping_geometry(self.nodal(q_n, start=True), self.lconn, op.dndX, op.wgp,
+                                self.ue_n, self.dxn, self.wn, self.dvn)
+
+    def nodal(self, q, start=False):
+        """(b, 3) the displacements V_b q + L_b of the cubature's nodes, L the operator's
+        lifting at the end of the substep (at its start: start=True)."""
+        op = self.op
+        if self._lift[0] is not op.L_n or self._lift[3] is not op.L:
+            self._lift = (op.L_n, np.ascontiguousarray(op.L_n[self.bnodes]),
+                          np.ascontiguousarray(op.L[self.bnodes]), op.L)
+        u = (self.Vb @ q).reshape(-1, 3)
+        return u + self._lift[1 if start else 2]
 
     def set_pose(self):
         """Take the operator's jaw pose (ReducedOperator.set_pose) into the contact."""
@@ -109,11 +127,12 @@ class OnlineOperator:
         """(f (r,) the internal reduced force, a work array; min det F of the bricks)."""
         op = self.op
         f = self.f
-        jmin = brick_forces_r(q, op.Ve, op.le, op.weights, op.dndX, op.wgp, op.params,
-                              op.sparams, self.s, op.form, self.ue_n, self.bd, self.dxn, self.wn,
-                              self.dvn, self.D0, self.kvol, f)
+        jmin = brick_forces_nodal(self.nodal(q), self.lconn, op.weights, op.dndX, op.wgp,
+                                  op.params, op.sparams, self.s, op.form, self.ue_n, self.bd,
+                                  self.dxn, self.wn, self.dvn, self.D0, self.kvol, self.fnod)
         if not jmin > 0.0:
             return f, jmin
+        np.dot(self.fnod.reshape(-1), self.Vb, out=f)
         if self.ncab:
             self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e, False,
                                        True, f, self.kc, self.tension)

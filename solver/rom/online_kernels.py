@@ -2,10 +2,12 @@ r"""Allocation-free numba kernels of the online reduced step (solver.rom.online)
 
 Each kernel does one thing and is dispatched once per evaluation from Python.
 
-* ``brick_forces_r``: the cubature's reduced internal force only (no tangent),
-  f_r = sum_e w_e V_e^T (f_e(u_e) + s_e f^s_e(u_e)), u_e = V_e q + le_e (le: the lifting,
-  the prescribed displacements of the jaw, solver.rom.lifting), the same quantity as
-  solver.rom.kernels.reduced_bricks(need_k=False). The tissue and the stiffening brick
+* ``brick_forces_nodal``: the cubature's internal force only (no tangent), on the b
+  nodes of its bricks: f = sum_e w_e (f_e(u_e) + s_e f^s_e(u_e)) (b, 3), whose projection
+  V_b^T f (one BLAS product, as u = V_b q + L_b before it) is the reduced force, the same
+  quantity as solver.rom.kernels.reduced_bricks(need_k=False). Projecting once on the b
+  nodes instead of per brick (8 k node rows, about three times b) reads the basis a
+  third as often. The tissue and the stiffening brick
   share F at each Gauss point; both energies are Mooney-Rivlin isochoric energies linear
   in (c10, c01, c20, c11, c02), so their forces are one law's with the coefficients added
   (the stiffening has no volumetric part): the core's element force,
@@ -18,7 +20,7 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
 * ``brick_forces_full``: the same brick forces unreduced, on the whole mesh (the trust
   check's full-order residual).
 * the damping (K_n, the passive small-strain stiffness on a shape): solver.rom.
-  damping_kernels, except the matrix-free damping force, which brick_forces_r adds.
+  damping_kernels, except the matrix-free damping force, which brick_forces_nodal adds.
 """
 
 import numpy as np
@@ -42,18 +44,20 @@ def _combined(p, ps, s, out):
 
 
 @njit(cache=True, fastmath=_FM)
-def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, dxn, wn,
-                   dvn, D0, kvol, fr):
-    """Fills fr (r,) with the cubature's reduced force at u_e = V_e q + le_e (q (r,), Ve
-    (k, 24, r), le (k, 24) the lifting: the prescribed displacements), w (k,),
-    dndX (k, 8, 8, 3), wgp (k, 8), params (k, 6) of the tissue (form 0: mean dilatation,
-    1: full), sparams (k, 6) the unit stiffening (c10, c20 used), s (k,) factors - 1.
-    With bd != 0, adds the damping force bd V_e^T K_n,e (V_e q - ue_n) of the bricks
-    (ue_n (k, 24) = V_e q_n + le_n; K_n on the shape of damping_geometry: dxn, wn, dvn; D0
-    (k, 6, 6), kvol (k,): see solver.rom.damping_kernels). Returns the smallest det F (<= 0 or NaN: an inverted brick; fr is then
+def brick_forces_nodal(u, conn, w, dndX, wgp, params, sparams, s, form, ue_n, bd, dxn, wn,
+                       dvn, D0, kvol, fn):
+    """Fills fn (b, 3) with the cubature's weighted nodal forces sum_e w_e (f_e(u_e) +
+    s_e f^s_e(u_e)) at the displacements u (b, 3) of the bricks' nodes (V q + L on them;
+    conn (k, 8) the bricks' local node indices into u), w (k,), dndX (k, 8, 8, 3), wgp
+    (k, 8), params (k, 6) of the tissue (form 0: mean dilatation, 1: full), sparams (k, 6)
+    the unit stiffening (c10, c20 used), s (k,) factors - 1. With bd != 0, adds the damping
+    force bd K_n,e (u_e - ue_n) of the bricks (ue_n (k, 24) the displacements at the start
+    of the substep; K_n on the shape of damping_geometry: dxn, wn, dvn; D0 (k, 6, 6), kvol
+    (k,): see solver.rom.damping_kernels). The reduced force is V_b^T fn (the caller's
+    BLAS product). Returns the smallest det F (<= 0 or NaN: an inverted brick; fn is then
     partial)."""
-    k, _, r = Ve.shape
-    fr[:] = 0.0
+    k = conn.shape[0]
+    fn[:, :] = 0.0
     ue = np.empty(24)
     due = np.empty(24)
     fe = np.empty(24)
@@ -64,13 +68,12 @@ def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, 
     damp = bd != 0.0
     jmin = np.inf
     for e in range(k):
-        for c in range(24):
-            acc = 0.0
-            for j in range(r):
-                acc += Ve[e, c, j] * q[j]
-            acc += le[e, c]
-            ue[c] = acc
-            due[c] = acc - ue_n[e, c]
+        for a in range(8):
+            n = conn[e, a]
+            for i in range(3):
+                c = 3 * a + i
+                ue[c] = u[n, i]
+                due[c] = u[n, i] - ue_n[e, c]
         _combined(params[e], sparams[e], s[e], pe)
         _, jm = element_residual(ue, dndX[e], wgp[e], pe, form, fe, dv)
         if not jm > 0.0:
@@ -80,10 +83,10 @@ def brick_forces_r(q, Ve, le, w, dndX, wgp, params, sparams, s, form, ue_n, bd, 
         if damp:
             _damping_force(e, due, dxn, wn, dvn, D0, kvol, form, bd, eps, sg, fe)
         we = w[e]
-        for c in range(24):
-            x = we * fe[c]
-            for j in range(r):
-                fr[j] += x * Ve[e, c, j]
+        for a in range(8):
+            n = conn[e, a]
+            for i in range(3):
+                fn[n, i] += we * fe[3 * a + i]
     return jmin
 
 
@@ -230,3 +233,29 @@ def project_nodal(Vb, fe, ke, rows, need_k, fr, kr):
                 if x != 0.0:
                     for j in range(r):
                         kr[i, j] += x * kv[c, j]
+
+
+@njit(cache=True)
+def lu_solve_small(lu, piv, b, x):
+    """x (r,) = -J^-1 b from LAPACK's getrf factors of J (scipy.linalg.lu_factor: lu (r, r),
+    L unit lower and U upper in one, piv (r,) the row swaps, 0-based): the Newton
+    correction, without the dispatch of a library call (r is a few dozen)."""
+    r = b.shape[0]
+    for i in range(r):
+        x[i] = -b[i]
+    for i in range(r):                     # the row swaps, in order
+        p = piv[i]
+        if p != i:
+            t = x[i]
+            x[i] = x[p]
+            x[p] = t
+    for i in range(r):                     # L y = P b, unit diagonal
+        acc = x[i]
+        for j in range(i):
+            acc -= lu[i, j] * x[j]
+        x[i] = acc
+    for i in range(r - 1, -1, -1):         # U x = y
+        acc = x[i]
+        for j in range(i + 1, r):
+            acc -= lu[i, j] * x[j]
+        x[i] = acc / lu[i, i]

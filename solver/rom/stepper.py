@@ -18,14 +18,16 @@ Two Newton methods, for the same equations:
     iteration, K_n on the shape at q_n of this substep: exact, as the full model, which
     rebuilds K_n every substep (solver/core/terms/inertia.py).
   - The tangent J = M_r / h^2 + alpha M_r / h + (beta / h) Kn + K_bricks + K_switch is
-    kept, inverted, across iterations and substeps: Kn and K_bricks from some earlier
-    shape (K_bricks split so that it follows the activations exactly:
-    solver.rom.online.brick_tangent), K_switch (cables, each contact term) rebuilt for a
-    part whenever its set of taut cables or active slaves differs from the one it was
-    built on. When an iteration converges slowly (|dq_k| > rate |dq_k-1|, or max_frozen
-    iterations), the tangents are refreshed: first the switching parts, then Kn (and
-    K_bricks when older than kb_every substeps); a residual that grows tenfold also
-    halves the step back. J changes the path of the iteration, not its root.
+    kept, LU-factorized, across iterations and substeps: Kn and K_bricks from some earlier
+    shape and activations, K_switch (cables, each contact term) rebuilt for a part
+    whenever its set of taut cables or active slaves differs from the one it was built
+    on. When an iteration converges slowly (|dq_k| > rate |dq_k-1|, or max_frozen
+    iterations), the tangents are refreshed: first the switching parts, then Kn and
+    K_bricks, the latter at the current activations on its shape (split as tissue + unit
+    stiffening per brick: solver.rom.online.brick_tangent) and rebuilt on the current
+    shape when older than kb_every substeps; a residual that grows tenfold also halves
+    the step back. J changes the path of the iteration, not its root. The correction
+    solves with J's LU factors in one small kernel (online_kernels.lu_solve_small).
   - Predictor: q_n + h v_n + h^2 a_n (the last substep's acceleration).
   - Converged when |dq| <= utol and theta / (1 - theta) |dq| <= utol, theta the observed
     contraction |dq_k| / |dq_k-1| (the last substep's at the first iteration): the error
@@ -51,6 +53,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from solver.rom.online import OnlineOperator
+from solver.rom.online_kernels import lu_solve_small
 
 METHODS = ("fast", "reference")
 H_MAX = 1e-3        # s: the largest reduced substep, unless the scene asks for a smaller one
@@ -75,7 +78,7 @@ class Stepper:
         self._current = method == "fast" and damping == "current" and bool(beta)
         self.C_r = op.C_r
         self.last = None                        # (q_n, v_n, h) of the last substep
-        self.stats = {"brick_tangents": 0, "switch_tangents": 0, "inversions": 0,
+        self.stats = {"brick_tangents": 0, "switch_tangents": 0, "factorizations": 0,
                       "damping_builds": 0, "backtracks": 0, "slow": 0}
         self.reset_caches()
 
@@ -83,7 +86,7 @@ class Stepper:
         self._damping_age = 10 ** 9             # rebuild C_r at the next substep
         self._kb = None                         # reference method's bricks tangent
         self._since_refresh, self._last_iters = 10 ** 9, 0
-        self._Kb = self._Ks = self._Kn = self._Jinv = self._a_kb = None
+        self._Kb = self._Ks = self._Kn = self._lu = self._a_kb = None
         self._Kparts = [None] * (self.online.parts if self.online is not None else 0)
         self._sets, self._A_key, self._bd = None, None, 0.0
         self._theta = 0.5
@@ -160,17 +163,19 @@ class Stepper:
         return True, q, v
 
     # -- modified Newton ------------------------------------------------------------------
-    def _invert(self):
+    def _factor(self):
         J = self._A + self._Kb + self._Ks
         if self._Kn is not None:
             J = J + self._bd * self._Kn
-        try:
-            Jinv = np.linalg.inv(J)
-        except np.linalg.LinAlgError:
+        if not np.all(np.isfinite(J)):
             return False
-        self._Jinv = Jinv
-        self.stats["inversions"] += 1
-        return bool(np.all(np.isfinite(Jinv)))
+        lu, piv = sla.lu_factor(J, check_finite=False)
+        d = np.abs(np.diag(lu))
+        if not d.min() > 1e-13 * d.max():      # exactly or numerically singular
+            return False
+        self._lu = (lu, piv.astype(np.int64))
+        self.stats["factorizations"] += 1
+        return True
 
     def _fresh_switching(self, q, parts=None):
         """Rebuild the tangents of the switching parts (all, or the list parts) at q."""
@@ -182,7 +187,7 @@ class Stepper:
             self.stats["switch_tangents"] += 1
         self._Ks = sum(self._Kparts)
         self._sets = on.active_sets()
-        self._Jinv = None
+        self._lu = None
 
     def _fresh_bricks(self, q, q_n):
         """Rebuild the damping's tangent (Kn on the shape at q_n) and, when older than
@@ -194,18 +199,17 @@ class Stepper:
             self._a_kb = self.online.a
             self._kb_age = 0
             self.stats["brick_tangents"] += 1
+        elif self.online.a is not self._a_kb:     # same shape, the current activations
+            self._Kb, self._a_kb = self.online.stiffened_tangent(), self.online.a
         if self._current:
             self._Kn = self.online.damping_tangent()       # on the shape at q_n
             self.stats["damping_builds"] += 1
-        self._Jinv = None
+        self._lu = None
         return True
 
     def _newton_fast(self, q_n, v_n, h, a, t):
         on, M = self.online, self.M_r
         on.set_activation(a)
-        if self._Kb is not None and on.a is not self._a_kb:
-            # the activations moved: the bricks' tangent follows them (same shape)
-            self._Kb, self._a_kb, self._Jinv = on.stiffened_tangent(), on.a, None
         if self._current:
             # the damping force beta K_n (q - q_n) / h, K_n on the shape at q_n (exact,
             # matrix-free); alpha M (q - q_n) / h below
@@ -216,7 +220,7 @@ class Stepper:
             C = self.C_r
         if self._A_key != h:
             self._A = M / (h * h) + C / h
-            self._A_key, self._bd, self._Jinv = h, self.beta / h, None
+            self._A_key, self._bd, self._lu = h, self.beta / h, None
         A = self._A
         q = q_n + h * v_n
         b = M @ q / (h * h) + C @ q_n / h
@@ -226,6 +230,7 @@ class Stepper:
         if self._a_prev is not None:          # predictor: the last substep's acceleration
             q = q + (h * h) * self._a_prev
         r_prev, dq, dn_prev = np.inf, None, None
+        dq_work = np.empty_like(q)
         # refresh: 0 none, 1 the switching parts, 2 also the bricks and the damping
         refresh = 2 if self._Kb is None else 0
         escalated = 0                         # the level of the last refresh this substep
@@ -257,9 +262,10 @@ class Stepper:
                 changed = [i for i, (x, y) in enumerate(zip(sets, self._sets)) if x != y]
                 if changed:
                     self._fresh_switching(q, changed)
-            if self._Jinv is None and not self._invert():
+            if self._lu is None and not self._factor():
                 return None, it, "singular reduced tangent"
-            dq = -(self._Jinv @ R)
+            lu_solve_small(*self._lu, R, dq_work)
+            dq = dq_work.copy()
             q = q + dq
             dn = math.sqrt(float(dq @ dq))
             if not math.isfinite(dn):
