@@ -3,7 +3,7 @@ error against the full-order model on a lip gesture.
 
     python benchmarks/realtime_fmu.py [--fmu FILE.fmu] [--model FILE.npz] [--step 0.001]
                                       [--gesture oop_ris] [--repeat 5] [--no-full]
-                                      [--md FILE]
+                                      [--no-balanced] [--md FILE]
 
 1. The FMU: --fmu, or built here (build_fmu.py) with the model that ships for the
    `speech` scene (solver/rom/models; all ten muscles, lip and teeth contact, the jaw),
@@ -18,7 +18,11 @@ error against the full-order model on a lip gesture.
 4. The full-order model of the scene at the realtime knobs (coarse generic half face,
    loose tolerances; 5 ms caller steps, as solver.rom.accuracy) on the same gesture: the
    largest difference in lip aperture and protrusion over its 5 ms records (--no-full
-   leaves it out).
+   leaves it out): the reduced model's own error.
+5. Beside it, the same FMU at fidelity "balanced" (the full-order model of the finer
+   face, solver.app.fidelity), one run at the same steps: its real-time factor and the
+   realtime runs' largest difference from it in lip aperture and protrusion, what a user
+   gives up for the speed (--no-balanced leaves it out).
 
 The gesture (solver.rom.accuracy.GESTURES, --gesture; jaw inputs go to the FMU's jaw):
 oop_ris, 0.3 s, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s, held. Prints the machine load
@@ -45,7 +49,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 path, out, step, duration, repeat = sys.argv[1], sys.argv[2], float(sys.argv[3]), \
     float(sys.argv[4]), int(sys.argv[5])
-sched = json.loads(sys.argv[6])
+sched, fidelity = json.loads(sys.argv[6]), sys.argv[7]
 md = read_model_description(path)
 vr = {v.name: v.valueReference for v in md.modelVariables}
 unzip = extract(path)
@@ -71,7 +75,7 @@ for k in range(repeat):
     fmu.instantiate(loggingOn=True, callbacks=None)
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
-    fmu.setString([vr["scene"], vr["fidelity"]], ["speech", "realtime"])
+    fmu.setString([vr["scene"], vr["fidelity"]], ["speech", fidelity])
     fmu.exitInitializationMode()
     init = time.perf_counter() - t0
     rows = [[0.0] + list(fmu.getReal([vr[x] for x in names]))]
@@ -106,7 +110,7 @@ def build_fmu(dest, model):
     return Path(dest) / "FaceFMU.fmu"
 
 
-def fmu_runs(fmu, step, duration, repeat, schedules):
+def fmu_runs(fmu, step, duration, repeat, schedules, fidelity="realtime"):
     sched = {s.muscle: [list(s.times), list(s.values)] for s in schedules}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.json"
@@ -115,7 +119,7 @@ def fmu_runs(fmu, step, duration, repeat, schedules):
         env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
                    OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
         run = subprocess.run([sys.executable, str(script), str(fmu), str(out), str(step),
-                              str(duration), str(repeat), json.dumps(sched)],
+                              str(duration), str(repeat), json.dumps(sched), fidelity],
                              capture_output=True, text=True, env=env, cwd=tmp)
         if not out.is_file():
             raise SystemExit(f"the fmpy run failed ({run.returncode}):\n"
@@ -135,6 +139,8 @@ def main(argv=None):
     ap.add_argument("--gesture", default="oop_ris")
     ap.add_argument("--repeat", type=int, default=5, help="runs of each (FMU: fresh instances)")
     ap.add_argument("--no-full", action="store_true", help="skip the full-order reference")
+    ap.add_argument("--no-balanced", action="store_true",
+                    help="skip the `balanced` fidelity through the FMU")
     ap.add_argument("--md", type=Path, help="write the figures as the gesture's row of this markdown table")
     args = ap.parse_args(argv)
     for var in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -155,6 +161,8 @@ def main(argv=None):
         if not args.fmu:
             print(f"built the FMU with the model in {time.perf_counter() - t0:.1f} s")
         res = fmu_runs(fmu, args.step, duration, args.repeat, schedules)
+        bal = None if args.no_balanced else \
+            fmu_runs(fmu, args.step, duration, 1, schedules, "balanced")
     runs = res["runs"]
     best = min(runs, key=lambda r: r["wall_s"])
     walls = ", ".join(f"{r['wall_s']:.3f}" for r in runs)
@@ -196,17 +204,29 @@ def main(argv=None):
         print(f"against the full-order model (coarse half face, 5 ms records, full order "
               f"{fwall:.1f} s wall): max error aperture {ap:.3f} mm (range {rng_ap:.2f} mm), "
               f"protrusion {pr:.3f} mm (range {rng_pr:.2f} mm)")
+    bap = bpr = brtf = float("nan")
+    if bal is not None:
+        b = bal["runs"][0]
+        brows = np.array(b["rows"])
+        bap, bpr = np.abs(fmu_rows[:, 1:3] - brows[:, 1:3]).max(axis=0)
+        brtf = b["wall_s"] / duration
+        print(f"beside `balanced` through the same FMU (full order, finer face, "
+              f"{1e3 * args.step:g} ms steps, 1 run): wall {b['wall_s']:.1f} s, real-time "
+              f"factor {brtf:.1f}; realtime - balanced: max aperture {bap:.3f} mm (range "
+              f"{np.ptp(brows[:, 1]):.2f} mm), protrusion {bpr:.3f} mm (range "
+              f"{np.ptp(brows[:, 2]):.2f} mm)")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in load())}")
     if args.md:
         from solver.app.provenance import command, commit, upsert_row
         key = f"{args.gesture} ({duration} s, {1e3 * args.step:g} ms steps)"
         upsert_row(args.md, "| gesture | FMU real-time factor, best / median | in process, "
-                   "best | max error aperture / protrusion (mm) | range (mm) | command, "
-                   "commit |\n|---|---|---|---|---|---|", key,
+                   "best | max error aperture / protrusion (mm) | range (mm) | `balanced` "
+                   "through the FMU: real-time factor | max error against `balanced` (mm) "
+                   "| command, commit |\n|---|---|---|---|---|---|---|---|", key,
                    f"| {key} | {best['wall_s'] / duration:.2f} / {med / duration:.2f} | "
                    f"{min(walls) / duration:.2f} | {ap:.3f} / {pr:.3f} | {rng_ap:.2f} / "
-                   f"{rng_pr:.2f} | `{command('benchmarks/realtime_fmu.py')}`, "
-                   f"{commit(ignore=[args.md])} |")
+                   f"{rng_pr:.2f} | {brtf:.1f} | {bap:.3f} / {bpr:.3f} | "
+                   f"`{command('benchmarks/realtime_fmu.py')}`, {commit(ignore=[args.md])} |")
     return 0
 
 

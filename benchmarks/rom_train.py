@@ -2,6 +2,7 @@
 
     python benchmarks/rom_train.py [--scene SCENE] [--runs 26] [--jaw-runs 12]
                                    [--phrase-runs 48] [--phrase-duration 0.2]
+                                   [--jaw-phrase-runs 48]
                                    [--duration 0.15] [--energy 3e-4] [--jaw-energy 1e-5]
                                    [--ecsw-tol 0.1] [--max-wall 30]
                                    [--out FILE.npz]
@@ -55,6 +56,7 @@ def train_main(args):
     kw = dict(runs=args.runs, duration=args.duration, energy=1.0 - args.energy,
               jaw_energy=1.0 - args.jaw_energy, jaw_runs=args.jaw_runs,
               phrase_runs=args.phrase_runs, phrase_duration=args.phrase_duration,
+              jaw_phrase_runs=args.jaw_phrase_runs,
               ecsw_tol=args.ecsw_tol, out=args.out, seed=args.seed,
               max_wall=args.max_wall, budget=args.budget,
               provenance={"scene": args.scene, "revision": commit(),
@@ -113,6 +115,8 @@ def main(argv=None):
     ap.add_argument("--phrase-runs", type=int, default=48,
                     help="speech-like snapshot runs (solver.rom.train.random_phrase)")
     ap.add_argument("--phrase-duration", type=float, default=0.2, help="s per phrase run")
+    ap.add_argument("--jaw-phrase-runs", type=int, default=48,
+                    help="more phrase runs, each moving the jaw (their own seed)")
     ap.add_argument("--ecsw-tol", type=float, default=0.1, help="ECSW relative tolerance")
     ap.add_argument("--seed", type=int, default=1, help="of the random activation patterns")
     ap.add_argument("--budget", type=float, help="s: snapshot runs not finished by then "

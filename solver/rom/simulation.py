@@ -53,6 +53,7 @@ import warnings
 import numpy as np
 
 from solver.core.errors import ParameterError
+from solver.core.linsolve import single_threaded_blas
 from solver.app.fidelity import REDUCED, apply_fidelity
 from solver.app.simulation import Simulation, resolve_scene
 from solver.core.transient import StepStats
@@ -198,7 +199,8 @@ class ReducedSimulation(Simulation):
         act, jaw = self.face.activation, self.face.jaw
         start = (self.q, self.v_r, act.start.copy(), self._substeps)
         stats = StepStats()
-        ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats, jaw)
+        with single_threaded_blas():    # r-sized products: threads cost more than they give
+            ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats, jaw)
         if ok:
             self.q, self.v_r = q, v
             self._substeps += stats.substeps

@@ -14,10 +14,14 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    random stream `phrase_seed`): two or three phases, each a new target (one to five
    muscles at U(0.1, 1), each other muscle back to 0 or, one time in three, held),
    reached over U(0.02, 0.08) s; every third phrase moves the jaw's opening with its
-   phases as well. Single ramps from rest leave out what speech does: one gesture
-   taking over from another while the tissue still moves (without the phrases, a
-   held-out open-then-round gesture came out several times further off than its states
-   lie from the basis: docs/dev-notes/realtime-balanced.md).
+   phases as well; then `jaw_phrase_runs` more phrases, every one moving the jaw
+   (their own stream `jaw_phrase_seed`). Single ramps from rest leave out what speech
+   does: one gesture taking over from another while the tissue still moves (without the
+   phrases, a held-out open-then-round gesture came out several times further off than
+   its states lie from the basis), and the muscles acting on a jaw that opens or closes
+   under them (with a held-out jaw gesture's own full-order states added to the basis,
+   the reduced model follows it to 0.03 mm, without them 0.38 mm:
+   docs/dev-notes/realtime-balanced.md).
    The poses covered are the model's "jaw_envelope". A run that takes longer than
    max_wall keeps the snapshots it has.
    Runs are independent tasks: through a dask client (solver.sweep.Sweep,
@@ -208,10 +212,13 @@ def snapshot_task(task, scene, sim=None):
 
 
 def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_runs=0,
-                   phrase_runs=0, phrase_duration=0.2, phrase_seed=7):
+                   phrase_runs=0, phrase_duration=0.2, phrase_seed=7, jaw_phrase_runs=0,
+                   jaw_phrase_seed=11):
     """The training runs' tasks (module docstring): `runs` muscle patterns, then
     `jaw_runs` that move the jaw as well, then `phrase_runs` phrases (of
-    phrase_duration s; every third moves the jaw where the face has one)."""
+    phrase_duration s; every third moves the jaw where the face has one), then
+    `jaw_phrase_runs` phrases that all move it (their own stream jaw_phrase_seed; none
+    without a jaw)."""
     rng = np.random.default_rng(seed)
     driven = list(scene.driven)
     order = list(rng.permutation(driven))
@@ -230,6 +237,12 @@ def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_run
         jaw = jaw_runs > 0 and i % 3 == 2
         tasks.append({"label": f"{'jaw ' if jaw else ''}phrase {i}",
                       "schedules": random_phrase(rng, driven, phrase_duration, jaw),
+                      "duration": phrase_duration, "interval": interval,
+                      "max_wall": max_wall})
+    rng = np.random.default_rng(jaw_phrase_seed)
+    for i in range(jaw_phrase_runs if jaw_runs > 0 else 0):
+        tasks.append({"label": f"jaw phrase {phrase_runs + i}",
+                      "schedules": random_phrase(rng, driven, phrase_duration, True),
                       "duration": phrase_duration, "interval": interval,
                       "max_wall": max_wall})
     return tasks
@@ -363,7 +376,8 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
           energy=1.0 - 1e-6, r_max=60, ecsw_tol=1e-2, ecsw_states=150, calibration_runs=3,
           trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
           sim_only=False, budget=None, jaw_runs=12, provenance=None, jaw_energy=None,
-          phrase_runs=0, phrase_duration=0.2, phrase_seed=7):
+          phrase_runs=0, phrase_duration=0.2, phrase_seed=7, jaw_phrase_runs=0,
+          jaw_phrase_seed=11):
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
     runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept).
@@ -378,7 +392,8 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     base = scene.with_overrides(schedules=())
     jaw_runs = jaw_runs if sim.face.jaw is not None else 0
     tasks = snapshot_tasks(base, runs, duration, interval, seed, max_wall, jaw_runs,
-                           phrase_runs, phrase_duration, phrase_seed)
+                           phrase_runs, phrase_duration, phrase_seed, jaw_phrase_runs,
+                           jaw_phrase_seed)
     from solver.rom.store import cache_dir, key_hash
     folder = cache_dir() / "snapshots" / key_hash(model_key(base))
     results = collect(base, tasks, client, progress, sim, None if sim_only else folder,
@@ -412,7 +427,8 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
             "captured_energy": captured_energy(sigma, r1), "snapshots": int(U.shape[1]),
             "runs": runs, "jaw_runs": jaw_runs, "jaw_envelope": jaw_envelope(tasks),
             "phrase_runs": phrase_runs, "phrase_duration": phrase_duration,
-            "phrase_seed": phrase_seed,
+            "phrase_seed": phrase_seed, "jaw_phrase_runs": jaw_phrase_runs,
+            "jaw_phrase_seed": jaw_phrase_seed,
             "duration": duration, "interval": interval, "seed": seed,
             "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
             "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
