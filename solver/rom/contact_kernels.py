@@ -163,8 +163,9 @@ def fill_positions(q, X, Vc, nodes, x):
 
 
 @njit(cache=True)
-def _project_block(Vb, fe, ke, b, need_k, fr, kr, kv):
-    """fr += Vb[b]^T fe[b]; with need_k, kr += Vb[b]^T ke[b] Vb[b] (kv (d, r) work)."""
+def _project_block(Vb, fe, ke, b, need_k, fr, kr, kv, tmp):
+    """fr += Vb[b]^T fe[b]; with need_k, kr += Vb[b]^T ke[b] Vb[b] (kv (d, r), tmp (r, r)
+    work; the products by BLAS)."""
     r, d = Vb.shape[2], Vb.shape[1]
     for c in range(d):
         x = fe[b, c]
@@ -173,20 +174,11 @@ def _project_block(Vb, fe, ke, b, need_k, fr, kr, kv):
                 fr[j] += x * Vb[b, c, j]
     if not need_k:
         return
-    for c in range(d):
+    np.dot(ke[b], Vb[b], kv)
+    np.dot(Vb[b].T, kv, tmp)
+    for i in range(r):
         for j in range(r):
-            kv[c, j] = 0.0
-        for c2 in range(d):
-            x = ke[b, c, c2]
-            if x != 0.0:
-                for j in range(r):
-                    kv[c, j] += x * Vb[b, c2, j]
-    for c in range(d):
-        for i in range(r):
-            x = Vb[b, c, i]
-            if x != 0.0:
-                for j in range(r):
-                    kr[i, j] += x * kv[c, j]
+            kr[i, j] += tmp[i, j]
 
 
 @njit(cache=True)
@@ -195,12 +187,13 @@ def project_pairs(Vb, fe, ke, active, force, need_k, fr, kr, kv):
     fe (p, d), ke (p, d, d), kv (d, r) work). Returns (the sum of force, a signature of the
     active set: a hash, equal for equal sets)."""
     sig = np.int64(active.shape[0])
+    tmp = np.empty((kr.shape[0], kr.shape[1]) if need_k else (0, 0))
     for i in range(active.shape[0]):
         b = active[i]
         if b < 0:
             continue
         sig = sig * np.int64(1099511628211) + b + 1
-        _project_block(Vb, fe, ke, b, need_k, fr, kr, kv)
+        _project_block(Vb, fe, ke, b, need_k, fr, kr, kv, tmp)
     total = 0.0
     for i in range(force.shape[0]):
         total += force[i]
@@ -211,11 +204,12 @@ def project_pairs(Vb, fe, ke, active, force, need_k, fr, kr, kv):
 def project_slaves(Vb, fe, ke, gap, force, need_k, fr, kr, kv):
     """project_pairs for node blocks b with gap[b] <= 0 (in contact)."""
     sig = np.int64(gap.shape[0])
+    tmp = np.empty((kr.shape[0], kr.shape[1]) if need_k else (0, 0))
     for b in range(gap.shape[0]):
         if not gap[b] <= 0.0:
             continue
         sig = sig * np.int64(1099511628211) + b + 1
-        _project_block(Vb, fe, ke, b, need_k, fr, kr, kv)
+        _project_block(Vb, fe, ke, b, need_k, fr, kr, kv, tmp)
     total = 0.0
     for i in range(force.shape[0]):
         total += force[i]

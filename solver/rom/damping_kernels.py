@@ -115,13 +115,10 @@ def passive_stiffness_kv(Ve, w, dxn, wn, dvn, D0, kvol, form, kv):
             for c2 in range(c1 + 1, 24):
                 ke[c2, c1] = ke[c1, c2]
         we = w[e]
-        for c in range(24):
-            for j in range(r):
-                kv[e, c, j] = 0.0
-            for d in range(24):
-                x = we * ke[c, d]
-                for j in range(r):
-                    kv[e, c, j] += x * Ve[e, d, j]
+        for c1 in range(24):
+            for c2 in range(24):
+                ke[c1, c2] *= we
+        np.dot(ke, Ve[e], kv[e])                # BLAS
 
 
 @njit(cache=True, fastmath=_FM)

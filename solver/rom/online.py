@@ -6,7 +6,8 @@ evaluated fast (same math; tests/test_rom_online.py compares the two).
   BLAS products: u_b = V_b q + L_b before, f_r = V_b^T f_b after; the tangent split into the tissue's and each brick's unit
   stiffening (solver.rom.kernels.brick_tangents_split), so that a tangent built on one
   shape follows the activations exactly (kt + sum_e s_e(a) ks_e);
-* cables: one numba pass (cable_forces_r) over D_c (c, 3, r) projected once;
+* cables: one numba pass (cable_forces_r) over D_c (c, 3, r) projected once (the
+  tangent: D^T (W D) in one BLAS product);
 * the jaw: the lifting L(p) of the operator's pose (ReducedOperator.set_pose,
   solver.rom.lifting) in every displacement: le in the bricks' kernels, d0(p) of the
   cables, the contact nodes and the lower teeth (ReducedContact.set_pose);
@@ -58,10 +59,10 @@ class OnlineOperator:
             self.D = np.ascontiguousarray(op.D)
             self.AE = np.ascontiguousarray(op.AE, dtype=np.float64)
             self.L0 = np.ascontiguousarray(op.L0, dtype=np.float64)
+            self.wd = np.zeros_like(self.D)                 # W_c D_c (c, 3, r)
             self.tension = np.zeros(self.ncab)
         self.fb, self.fc = np.zeros(r), np.zeros(r)
         self.f = np.zeros(r)
-        self.kb, self.kc = np.zeros((r, r)), np.zeros((r, r))
         self.s = np.zeros(len(op.bricks))
         self.e = np.zeros(self.ncab)
         self.taut = 0
@@ -135,7 +136,7 @@ class OnlineOperator:
         np.dot(self.fnod.reshape(-1), self.Vb, out=f)
         if self.ncab:
             self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e, False,
-                                       True, f, self.kc, self.tension)
+                                       True, f, self.wd, self.tension)
         self.contact.evaluate(q, False, f)
         return f, jmin
 
@@ -185,8 +186,8 @@ class OnlineOperator:
         K = np.zeros((self.r, self.r))
         if self.ncab:
             self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e,
-                                       True, False, self.fc, self.kc, self.tension)
-            K += self.kc
+                                       True, False, self.fc, self.wd, self.tension)
+            K += self.D.reshape(-1, self.r).T @ self.wd.reshape(-1, self.r)
         if part is None:
             _, kk = self.contact.evaluate(q, True)
             K += kk

@@ -13,8 +13,9 @@ Each kernel does one thing and is dispatched once per evaluation from Python.
   (the stiffening has no volumetric part): the core's element force,
   solver.core.kernels.brick_residual.element_residual (inlined into these kernels).
 * ``cable_forces_r``: every cable, reduced: x_q - x_p = d0_c + D_c q,
-  f_r = sum_c T_c D_c^T n_c, and optionally K_r = sum_c D_c^T (AE/L0 n n^T
-  + T/l (1 - n n^T)) D_c (solver.core.kernels.cable's law, projected).
+  f_r = sum_c T_c D_c^T n_c, and optionally W_c D_c, W_c = AE/L0 n n^T + T/l (1 - n n^T)
+  (solver.core.kernels.cable's law), for the tangent K_r = sum_c D_c^T W_c D_c as one
+  BLAS product.
 * ``project_nodal``: f_r += sum_i V_i^T f_i and K_r += sum_i V_i^T K_i V_i over the rows i
   of a set of node blocks whose force is non-zero (contact).
 * ``brick_forces_full``: the same brick forces unreduced, on the whole mesh (the trust
@@ -154,15 +155,16 @@ def _damping_force(e, due, dxn, wn, dvn, D0, kvol, form, bd, eps, sg, fe):
 
 
 @njit(cache=True, fastmath=_FM)
-def cable_forces_r(q, D, d0, AE, L0, e, need_k, add, fr, kr, tension):
+def cable_forces_r(q, D, d0, AE, L0, e, need_k, add, fr, wd, tension):
     """Reduced cable forces: D (c, 3, r), d0 (c, 3), AE, L0, e (c,) active strains; fills
-    (add: adds to) fr (r,), fills tension (c,) and, when need_k, kr (r, r). Returns a
-    signature of the set of taut cables (a hash: equal sets, equal signatures)."""
+    (add: adds to) fr (r,), fills tension (c,) and, when need_k, wd (c, 3, r) = W_c D_c,
+    W_c = AE/L0 n n^T + T/l (I - n n^T) of a taut cable (0 for a slack one), whose
+    product D^T wd (the caller's BLAS product over the 3 c rows) is the tangent
+    sum_c D_c^T W_c D_c. Returns a signature of the set of taut cables (a hash: equal
+    sets, equal signatures)."""
     nc, _, r = D.shape
     if not add:
         fr[:] = 0.0
-    if need_k:
-        kr[:, :] = 0.0
     dn = np.empty(r)
     taut = np.int64(nc)
     for c in range(nc):
@@ -177,6 +179,8 @@ def cable_forces_r(q, D, d0, AE, L0, e, need_k, add, fr, kr, tension):
         st = l / L0[c] - 1.0 + e[c]
         if not st > 0.0:
             tension[c] = 0.0
+            if need_k:
+                wd[c, :, :] = 0.0
             continue
         taut = taut * np.int64(1099511628211) + c + 1
         T = AE[c] * st
@@ -187,16 +191,10 @@ def cable_forces_r(q, D, d0, AE, L0, e, need_k, add, fr, kr, tension):
         if need_k:
             a = AE[c] / L0[c] - T / l
             b = T / l
-            for i in range(r):
-                ai = a * dn[i]
-                for j in range(i, r):
-                    kr[i, j] += ai * dn[j] + b * (D[c, 0, i] * D[c, 0, j]
-                                                  + D[c, 1, i] * D[c, 1, j]
-                                                  + D[c, 2, i] * D[c, 2, j])
-    if need_k:
-        for i in range(r):
-            for j in range(i + 1, r):
-                kr[j, i] = kr[i, j]
+            for j in range(r):
+                wd[c, 0, j] = a * n0 * dn[j] + b * D[c, 0, j]
+                wd[c, 1, j] = a * n1 * dn[j] + b * D[c, 1, j]
+                wd[c, 2, j] = a * n2 * dn[j] + b * D[c, 2, j]
     return taut
 
 
