@@ -253,5 +253,29 @@ def test_phrase_runs_are_valid_speech_like_patterns_and_reproducible():
             assert 0.0 <= min(s.values) and max(s.values) <= hi and max(s.values) > 0
     again = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=12)
     assert repr([t["schedules"] for t in again]) == repr([t["schedules"] for t in tasks])
-    no_jaw = snapshot_tasks(scene, 2, 0.15, 0.005, 1, phrase_runs=3)
+    no_jaw = snapshot_tasks(scene, 2, 0.15, 0.005, 1, phrase_runs=3, jaw_phrase_runs=4)
+    assert len(no_jaw) == 5          # no jaw phrases for a face without a jaw
     assert not any(s.muscle == "jaw_opening" for t in no_jaw for s in t["schedules"])
+
+
+def test_jaw_phrase_runs_all_move_the_jaw_and_leave_the_other_runs_as_they_were():
+    """jaw_phrase_runs: appended after the phrases from their own stream, each moving the
+    jaw's opening within its range (label "jaw phrase k", k after the phrases' numbers),
+    so that adding them keeps every earlier task (and its cached snapshots) unchanged."""
+    from solver.face.jaw import JAW_RANGES
+    from solver.rom.train import snapshot_tasks
+    scene = Scene(name="t", driven=("OOP", "RIS", "DLI", "LLSAN", "BUC", "ZYG"))
+    before = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=6)
+    tasks = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=6,
+                           jaw_phrase_runs=5)
+    assert len(tasks) == len(before) + 5
+    assert repr(tasks[:len(before)]) == repr(before)
+    extra = tasks[len(before):]
+    assert [t["label"] for t in extra] == [f"jaw phrase {6 + i}" for i in range(5)]
+    for t in extra:
+        jaw = [s for s in t["schedules"] if s.muscle == "jaw_opening"]
+        assert len(jaw) == 1 and 0.0 < max(jaw[0].values) <= JAW_RANGES["jaw_opening"][1]
+        assert any(s.muscle in scene.driven for s in t["schedules"])
+    other = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=6,
+                           jaw_phrase_runs=5, jaw_phrase_seed=12)
+    assert repr(other[len(before):]) != repr(extra)

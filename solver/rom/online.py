@@ -3,9 +3,10 @@ evaluated fast (same math; tests/test_rom_online.py compares the two).
 
 * bricks: force-only kernel (solver.rom.online_kernels.brick_forces_nodal; tissue and
   stiffening in one pass) on the b distinct nodes of the cubature's bricks, between two
-  BLAS products: u_b = V_b q + L_b before, f_r = V_b^T f_b after; the tangent split into the tissue's and each brick's unit
-  stiffening (solver.rom.kernels.brick_tangents_split), so that a tangent built on one
-  shape follows the activations exactly (kt + sum_e s_e(a) ks_e);
+  BLAS products: u_b = V_b q + L_b before, f_r = V_b^T f_b after; the tangent split into
+  the tissue's and each brick's unit stiffening (solver.rom.kernels.brick_tangents_split),
+  so that a tangent built on one shape follows the activations exactly
+  (kt + sum_e s_e(a) ks_e);
 * cables: one numba pass (cable_forces_r) over D_c (c, 3, r) projected once (the
   tangent: D^T (W D) in one BLAS product);
 * the jaw: the lifting L(p) of the operator's pose (ReducedOperator.set_pose,
