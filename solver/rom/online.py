@@ -17,10 +17,6 @@ evaluated fast (same math; tests/test_rom_online.py compares the two).
   matrix-free, in the bricks' kernel, on the cubature's bricks (prepare_damping once per
   substep: their dN/dx on that shape); the damping matrix itself (for the tangent only)
   by solver.rom.damping_kernels.passive_stiffness_kv on that shape;
-* a reduced bulk term (solver.rom.bulk), when the model has one: its force and tangent
-  on its sampled bricks, its damping beta J_n^T (J_n (q - q_n) + A G_n (L_I - L_I,n))
-  with J_n from the start of the substep (prepare_damping; the second part: the jaw's
-  motion, as the bricks' kernel damps it);
 * activations: the stiffening factors s_e and the cables' active strains are computed
   once per substep (set_activation), not per iteration.
 
@@ -86,7 +82,6 @@ class OnlineOperator:
         self._kv = np.zeros((k, 24, r))                     # damping_tangent's w_e K_n,e V_e
         self._ve2 = np.ascontiguousarray(op.Ve).reshape(k * 24, r)
         self.bd, self.q_n = 0.0, np.zeros(r)
-        self.Jn = None                 # the bulk term's J at q_n (prepare_damping)
         # bricks that stiffen with some muscle: their unit-stiffening tangents apart
         stiff = np.flatnonzero(op.sweight.max(axis=1) > 0) if op.stiffening is not None \
             else np.zeros(0, dtype=np.int64)
@@ -103,10 +98,6 @@ class OnlineOperator:
         if not bd:
             return 1.0
         op = self.op
-        if op.bulk is not None:        # J_n, and the jaw's motion through it
-            self.Jn, self.jdn = op.bulk.jacobian(q_n, op.ble_n, op.ble - op.ble_n)
-            if self.Jn is None:
-                return -1.0
         return damping_geometry(self.nodal(q_n, start=True), self.lconn, op.dndX, op.wgp,
                                 self.ue_n, self.dxn, self.wn, self.dvn)
 
@@ -144,13 +135,6 @@ class OnlineOperator:
         if not jmin > 0.0:
             return f, jmin
         np.dot(self.fnod.reshape(-1), self.Vb, out=f)
-        if op.bulk is not None:
-            fv, _ = op.bulk.forces(q, op.ble, False)
-            if fv is None:
-                return f, -1.0
-            f += fv
-            if self.bd:
-                f += self.bd * (self.Jn.T @ (self.Jn @ (q - self.q_n) + self.jdn))
         if self.ncab:
             self.taut = cable_forces_r(q, self.D, self.op.d0, self.AE, self.L0, self.e, False,
                                        True, f, self.wd, self.tension)
@@ -174,11 +158,6 @@ class OnlineOperator:
         op = self.op
         jmin = brick_tangents_split(q, op.Ve, op.le, op.weights, op.dndX, op.wgp, op.params,
                                     op.form, op.sparams, self.slot, self.kt, self.ks)
-        if op.bulk is not None and jmin > 0.0:
-            _, kv = op.bulk.forces(q, op.ble, True)
-            if kv is None:
-                return False
-            self.kt += kv
         return bool(jmin > 0.0)
 
     def damping_tangent(self):
@@ -188,8 +167,6 @@ class OnlineOperator:
         passive_stiffness_kv(op.Ve, op.weights, self.dxn, self.wn, self.dvn, self.D0,
                              self.kvol, op.form, self._kv)
         K = self._ve2.T @ self._kv.reshape(-1, self.r)
-        if self.Jn is not None:
-            K += self.Jn.T @ self.Jn
         return 0.5 * (K + K.T)
 
     def stiffened_tangent(self):

@@ -20,9 +20,7 @@ same scheme as the full model (solver.core.transient), projected (Galerkin):
   (lifting_damping). The stepping (solver.rom.stepper) decides when it is built;
   the fast online step (solver.rom.online) applies it matrix-free;
 * tissue and activation stiffening: the ECSW cubature (solver.rom.ecsw) over the selected
-  bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels); with a reduced bulk
-  term (solver.rom.bulk: the volumetric energy on a few modes of the bricks'
-  dilatations) the cubature's bricks carry the isochoric energy only;
+  bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels);
 * cables (all, exactly): cable c pulls its end points x_p, x_q, with
   x_q - x_p = d0_c(p) + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a) (3, r); with l, n, the
   tension T = AE (l / L0 - 1 + e_c(a))^+ (solver.core.kernels.cable):
@@ -37,7 +35,6 @@ import numpy as np
 
 from solver.core.assembly import block_dofs
 from solver.core.terms.base import State
-from solver.rom.bulk import ReducedBulk, isochoric
 from solver.rom.kernels import reduced_bricks
 from solver.rom.lifting import Lifting
 
@@ -56,11 +53,9 @@ class ReducedOperator:
     """The reduced forces of a face Simulation (its terms, anatomy and activations).
 
     sim: solver.app.simulation.Simulation (transient); V (3 n, r); bricks (k,) the cubature's
-    brick indices and weights (k,); M_r, C_r (r, r); bulk: None (the volumetric energy in
-    the cubature's bricks) or (samples (m_I,), A (m, m_I)) of a reduced bulk term
-    (solver.rom.bulk)."""
+    brick indices and weights (k,); M_r, C_r (r, r)."""
 
-    def __init__(self, sim, V, bricks, weights, M_r, C_r, bulk=None):
+    def __init__(self, sim, V, bricks, weights, M_r, C_r):
         face, mesh = sim.face, sim.anatomy.mesh
         self.face, self.mesh = face, mesh
         self.V = np.ascontiguousarray(V)
@@ -75,12 +70,6 @@ class ReducedOperator:
         el = face.model.elasticity
         self.form = el.form
         self.params = np.ascontiguousarray(el.params[self.bricks])
-        self.bulk = None
-        if bulk is not None:
-            if self.form != 0:
-                raise ValueError("a reduced bulk term needs the mean-dilatation bricks")
-            self.params = isochoric(self.params)
-            self.bulk = ReducedBulk(mesh, el.params, Vn, *bulk)
         self.dndX = np.ascontiguousarray(mesh.dn_dx[self.bricks])
         self.wgp = np.ascontiguousarray(mesh.det_j[self.bricks])
         self._stiffening_setup(face)
@@ -105,8 +94,6 @@ class ReducedOperator:
         self.pose = np.array(pose, dtype=np.float64)
         self.L_n, self.le_n, _ = self.lifting.at(pose_n)
         self.L, self.le, d0 = self.lifting.at(pose)
-        if self.bulk is not None:
-            self.ble_n, self.ble = self.bulk.lifting(self.L_n), self.bulk.lifting(self.L)
         if d0 is not None:
             self.d0 = d0
         self.moving = bool(np.any(self.le != self.le_n))
@@ -172,15 +159,7 @@ class ReducedOperator:
         jmin = reduced_bricks(q, self.Ve, self.le, self.weights, self.dndX, self.wgp,
                               self.params,
                               self.form, self.sparams, s, need_k, self.fr, self.kr)
-        f, K = self.fr.copy(), (self.kr.copy() if need_k else None)
-        if self.bulk is not None and jmin > 0.0:
-            fv, kv = self.bulk.forces(q, self.ble, need_k)
-            if fv is None:
-                return f, K, -1.0
-            f += fv
-            if need_k:
-                K += kv
-        return f, K, jmin
+        return self.fr.copy(), (self.kr.copy() if need_k else None), jmin
 
     def cables_part(self, q, a, need_k):
         if self.ncab == 0:
@@ -261,11 +240,6 @@ class ReducedOperator:
                               fr, kr)
         if not jmin > 0.0:
             raise FloatingPointError("an inverted brick in the damping's shape")
-        if self.bulk is not None:
-            J = self.bulk.jacobian(q, self.ble_n)
-            if J is None:
-                raise FloatingPointError("an inverted brick in the damping's shape")
-            kr[:self.r, :self.r] += J.T @ J
         if dle is None:
             return kr
         return kr[:-1, :-1].copy(), kr[:-1, -1].copy()
@@ -275,11 +249,7 @@ class ReducedOperator:
         jaw's velocity times h, damped through the tissue; 0 while the jaw stands)."""
         if not self.moving:
             return np.zeros(self.r)
-        f = self.passive_stiffness(q_n, np.ascontiguousarray(self.le - self.le_n))[1]
-        if self.bulk is not None:
-            J, jd = self.bulk.jacobian(q_n, self.ble_n, self.ble - self.ble_n)
-            f += J.T @ jd
-        return f
+        return self.passive_stiffness(q_n, np.ascontiguousarray(self.le - self.le_n))[1]
 
     def displacement(self, q, L=None):
         """(n, 3) full displacements V q + L (L: the lifting at the current pose)."""

@@ -134,9 +134,8 @@ class ReducedSimulation(Simulation):
         beta = sc.beta if sc.damping else 0.0
         m_scale = 1.0 if sc.inertia else 0.0
         M_r = arrays["M_r"]
-        bulk = (arrays["bulk_bricks"], arrays["bulk_A"]) if "bulk_A" in arrays else None
         self.op = ReducedOperator(self, V, arrays["bricks"], arrays["weights"],
-                                  m_scale * M_r, alpha * M_r + beta * arrays["K0_r"], bulk)
+                                  m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
         self.stepper = Stepper(self.op, M_r, alpha, beta, damping, damping_refresh, h, utol,
                                max_iter, method, refresh, rate, contact_delta, max_frozen,
                                kb_every)

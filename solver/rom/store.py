@@ -18,8 +18,7 @@ from anywhere.
 
 Arrays in a file: V (3 n, r) the basis (zero rows on constrained DOFs), bricks (k,) and
 weights (k,) the cubature, M_r, K0_r (r, r) the reduced mass and rest passive stiffness,
-sigma the POD singular values, trust_threshold (1,); optionally (a reduced bulk term,
-solver.rom.bulk) bulk_bricks (m_I,) and bulk_A (m, m_I); and meta: a JSON string (the key,
+sigma the POD singular values, trust_threshold (1,), and meta: a JSON string (the key,
 basis size, captured energy, ECSW tolerance and residual, training runs and times,
 calibration figures).
 """
@@ -48,7 +47,6 @@ FORMAT = 2
 #    master's nodes, 24 candidate triangles per lip slave.
 PHYSICS = 5
 ARRAYS = ("V", "bricks", "weights", "M_r", "K0_r", "sigma", "trust_threshold")
-OPTIONAL = ("bulk_bricks", "bulk_A")
 SHIPPED = Path(__file__).resolve().parent / "models"
 
 
@@ -142,8 +140,7 @@ def save_model(path, arrays, meta):
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, meta=np.array(json.dumps(meta, sort_keys=True)),
-                        **{k: np.asarray(arrays[k]) for k in ARRAYS + OPTIONAL
-                           if k in arrays})
+                        **{k: np.asarray(arrays[k]) for k in ARRAYS})
     os.replace(tmp, path)
     return path
 
@@ -152,7 +149,7 @@ def load_model(path, key=None):
     """(arrays dict, meta dict) from a .npz; with key, FaceFMUError unless it matches."""
     with np.load(Path(path), allow_pickle=False) as f:
         meta = json.loads(str(f["meta"]))
-        arrays = {k: f[k] for k in ARRAYS + OPTIONAL if k in f.files or k in ARRAYS}
+        arrays = {k: f[k] for k in ARRAYS}
     if meta.get("key", {}).get("format") != FORMAT:
         raise FaceFMUError(f"{path}: reduced model of another format; retrain it")
     if key is not None and meta["key"] != json.loads(json.dumps(key)):

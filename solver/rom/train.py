@@ -31,16 +31,11 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    of the jaw runs (u - V_1 V_1^T u), to `energy` and `jaw_energy`; V = [V_1 V_2]. The jaw runs'
    centimetres would otherwise take the energy criterion's modes from the lips'
    millimetres (docs/dev-notes/realtime-balanced.md).
-3. Bulk (bulk_modes = m > 0): the reduced bulk term (solver.rom.bulk): P, the first m
-   left singular vectors of the snapshots' dilatations s_e = c_e (v_e - V_e) over all
-   bricks, sampled at m + bulk_extra bricks (QDEIM); the volumetric energy is then this
-   term's, not the cubature bricks'.
-4. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
+3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
    basis, u = V V^T u_j + (u_j on the prescribed DOFs: the jaw's lifting), with their
-   activations (tissue + stiffening per brick; isochoric only with a bulk term).
-5. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping;
-   its volumetric part the bulk term's, J_0^T J_0, when there is one).
-6. Trust calibration: the reduced model runs `calibration_runs` of the training patterns,
+   activations (tissue + stiffening per brick).
+4. Matrices: M_r = V^T M V, K0_r = V^T K_0 V (rest passive stiffness, for the damping).
+5. Trust calibration: the reduced model runs `calibration_runs` of the training patterns,
    the first jaw run and the first phrase of each kind (without and with the jaw);
    the threshold is `trust_factor` times the largest full-order residual rho met
    (solver.rom.simulation), at least `trust_floor`. The largest displacement and lip
@@ -54,8 +49,6 @@ import numpy as np
 from solver.face.anatomy.base import MUSCLE_NAMES
 from solver.face.jaw import JAW_INPUTS, JAW_RANGES
 from solver.app.scene import Schedule
-from solver.rom.bulk import bulk_modes as _bulk_modes
-from solver.rom.bulk import bulk_scale, dilatations, isochoric, ReducedBulk, sample_bricks
 from solver.rom.ecsw import ecsw, scale_rows
 from solver.rom.kernels import element_forces
 from solver.rom.pod import captured_energy, pod_basis
@@ -332,47 +325,20 @@ def collect(scene, tasks, client=None, progress=True, sim=None, folder=None, bud
     return results
 
 
-def brick_data(sim, V, iso=False):
-    """All bricks as a solver.rom.reduced.ReducedOperator (weights 1); iso: their law
-    without its volumetric part (solver.rom.bulk.isochoric)."""
+def brick_data(sim, V):
+    """All bricks as a solver.rom.reduced.ReducedOperator (weights 1)."""
     from solver.rom.reduced import ReducedOperator
     r = V.shape[1]
     n = sim.anatomy.mesh.n_bricks
-    op = ReducedOperator(sim, V, np.arange(n), np.ones(n), np.zeros((r, r)),
-                         np.zeros((r, r)))
-    if iso:
-        op.params = isochoric(op.params)
-    return op
+    return ReducedOperator(sim, V, np.arange(n), np.ones(n), np.zeros((r, r)),
+                           np.zeros((r, r)))
 
 
-def bulk_snapshots(sim, U):
-    """(bricks, N) the dilatations s_e = c_e (v_e - V_e) of the displacement columns
-    U (3 n, N) (solver.rom.bulk)."""
-    mesh, el = sim.anatomy.mesh, sim.face.model.elasticity
-    ce = bulk_scale(el.params, mesh.det_j)
-    S = np.empty((mesh.n_bricks, U.shape[1]))
-    out = np.empty(mesh.n_bricks)
-    for j in range(U.shape[1]):
-        if dilatations(U[:, j].reshape(-1, 3), mesh.bricks, mesh.dn_dx, mesh.det_j, out):
-            raise FloatingPointError(f"an inverted brick in snapshot {j}")
-        S[:, j] = ce * out
-    return S
-
-
-def reduced_bulk(sim, U, m, extra=0):
-    """(samples (m + extra,), A (m, m + extra), sigma): the reduced bulk term of m
-    dilatation modes of the snapshots U (solver.rom.bulk)."""
-    P, sigma = _bulk_modes(bulk_snapshots(sim, U), m)
-    I, A = sample_bricks(P, extra)
-    return I, A, sigma
-
-
-def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None, iso=False):
+def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None):
     """ECSW over up to `states` snapshot columns of U (with activations A), projected on
     V on the free DOFs, as they are on the prescribed ones (the jaw): (bricks, weights,
-    relative residual). iso: the forces of the isochoric law (a model with a reduced bulk
-    term)."""
-    op = brick_data(sim, V, iso)
+    relative residual)."""
+    op = brick_data(sim, V)
     mesh = sim.anatomy.mesh
     nz = np.flatnonzero(np.abs(U).max(axis=0) > 0)
     pick = nz[np.unique(np.linspace(0, len(nz) - 1, min(states, len(nz))).astype(int))]
@@ -393,27 +359,16 @@ def cubature(sim, V, U, A, tol=1e-2, states=150, max_elements=None, iso=False):
     return sel, w[sel], res
 
 
-def reduced_matrices(sim, V, bulk=None):
-    """(M_r, K0_r): V^T M V with the lumped masses, V^T K_0 V (rest passive tangent);
-    with bulk = (samples, A), K_0's volumetric part (per brick c_e^2 dv dv^T at rest:
-    rank one) replaced by the reduced bulk term's J_0^T J_0."""
+def reduced_matrices(sim, V):
+    """(M_r, K0_r): V^T M V with the lumped masses, V^T K_0 V (rest passive tangent)."""
     from solver.core.terms.inertia import lumped_masses, passive_tangent
     from solver.core.units import kg_per_m3
     mesh = sim.anatomy.mesh
     m3 = np.repeat(lumped_masses(mesh, kg_per_m3(sim.scene.density)), 3)
     M_r = V.T @ (m3[:, None] * V)
     Ve = brick_data(sim, V).Ve
-    el = sim.face.model.elasticity
-    ke = passive_tangent(el)
-    if bulk is not None:
-        gv = (np.einsum("eg,egai->eai", mesh.det_j, mesh.dn_dx).reshape(-1, 24)
-              * bulk_scale(el.params, mesh.det_j)[:, None])            # c_e dv/du at rest
-        ke = ke - gv[:, :, None] * gv[:, None, :]
+    ke = passive_tangent(sim.face.model.elasticity)
     K0_r = np.einsum("edr,eds->rs", Ve, ke @ Ve)
-    if bulk is not None:
-        rb = ReducedBulk(mesh, el.params, V.reshape(mesh.n_nodes, 3, -1), *bulk)
-        J0 = rb.jacobian(np.zeros(V.shape[1]), np.zeros((len(rb.samples), 24)))
-        K0_r += J0.T @ J0
     return M_r, 0.5 * (K0_r + K0_r.T)
 
 
@@ -422,13 +377,11 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
           trust_factor=3.0, trust_floor=0.05, out=None, progress=True, max_wall=40.0,
           sim_only=False, budget=None, jaw_runs=12, provenance=None, jaw_energy=None,
           phrase_runs=0, phrase_duration=0.2, phrase_seed=7, jaw_phrase_runs=0,
-          jaw_phrase_seed=11, bulk_modes=0, bulk_extra=0):
+          jaw_phrase_seed=11):
     """Train, save and return the path of the realtime model of scene (a Scene at the
     realtime knobs; sim: its full-order Simulation if already built). Finished snapshot
     runs are kept in <cache>/rom/snapshots/<key> and reused (sim_only=True: not kept).
-    provenance: a dict stored in the model's meta (e.g. scene name, command, commit).
-    bulk_modes, bulk_extra: the reduced bulk term's modes and extra sampled bricks (0: the
-    volumetric energy in the cubature's bricks, as the full model's)."""
+    provenance: a dict stored in the model's meta (e.g. scene name, command, commit)."""
     from solver.app.simulation import Simulation
     t_start = time.perf_counter()
     if sim is None:
@@ -463,19 +416,11 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
     V = np.zeros((U.shape[0], Vf.shape[1]))
     V[free] = Vf
     t_pod = time.perf_counter()
-    bulk, bulk_meta = None, {}
-    if bulk_modes:
-        samples, bulk_A, bsig = reduced_bulk(sim, U, bulk_modes, bulk_extra)
-        bulk = (samples, bulk_A)
-        bulk_meta = {"bulk_modes": int(bulk_modes), "bulk_samples": int(len(samples)),
-                     "bulk_captured": captured_energy(bsig, bulk_modes)}
-    bricks, weights, res = cubature(sim, V, U, A, ecsw_tol, ecsw_states, iso=bool(bulk_modes))
+    bricks, weights, res = cubature(sim, V, U, A, ecsw_tol, ecsw_states)
     t_ecsw = time.perf_counter()
-    M_r, K0_r = reduced_matrices(sim, V, bulk)
+    M_r, K0_r = reduced_matrices(sim, V)
     arrays = {"V": V, "bricks": bricks, "weights": weights, "M_r": M_r, "K0_r": K0_r,
               "sigma": sigma, "trust_threshold": np.array([np.inf])}
-    if bulk is not None:
-        arrays.update(bulk_bricks=bulk[0], bulk_A=bulk[1])
     r = V.shape[1]
     meta = {"scene": scene.name, **(provenance or {}), "key": model_key(scene),
             "basis_size": r, "jaw_modes": r - r1, "runs_used": len(results),
@@ -486,7 +431,7 @@ def train(scene, sim=None, runs=24, duration=0.2, interval=0.005, seed=0, client
             "jaw_phrase_seed": jaw_phrase_seed,
             "duration": duration, "interval": interval, "seed": seed,
             "bricks_selected": int(len(bricks)), "bricks_total": int(sim.anatomy.mesh.n_bricks),
-            "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap, **bulk_meta,
+            "ecsw_tol": ecsw_tol, "ecsw_residual": res, "snapshot_s": t_snap,
             "pod_s": t_pod - t_start - t_snap, "ecsw_s": t_ecsw - t_pod}
     pick = list(range(min(calibration_runs, len(tasks))))      # and a jaw run, if any,
     for kind in ("jaw pattern", "phrase", "jaw phrase"):        # and the first phrases
