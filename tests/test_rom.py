@@ -258,6 +258,24 @@ def test_phrase_runs_are_valid_speech_like_patterns_and_reproducible():
     assert not any(s.muscle == "jaw_opening" for t in no_jaw for s in t["schedules"])
 
 
+def test_phrase_runs_of_a_scene_driving_fewer_than_five_muscles():
+    """A phrase's target takes one to five muscles: a scene driving fewer (open_round's
+    four, or two) gets phrases over its own muscles, not an error."""
+    from solver.rom.train import snapshot_tasks
+    for driven in (("LLSAN", "RIS", "DLI", "OOP"), ("OOP", "RIS")):
+        scene = Scene(name="t", driven=driven)
+        tasks = snapshot_tasks(scene, 2, 0.15, 0.005, 1, jaw_runs=1, phrase_runs=12,
+                               jaw_phrase_runs=3)
+        phrases = [t for t in tasks if "phrase" in t["label"]]
+        assert len(phrases) == 15
+        used = set()
+        for t in phrases:
+            names = {s.muscle for s in t["schedules"]} - {"jaw_opening"}
+            assert names and names <= set(driven)
+            used |= names
+        assert used == set(driven)
+
+
 def test_jaw_phrase_runs_all_move_the_jaw_and_leave_the_other_runs_as_they_were():
     """jaw_phrase_runs: appended after the phrases from their own stream, each moving the
     jaw's opening within its range (label "jaw phrase k", k after the phrases' numbers),

@@ -131,7 +131,8 @@ def random_phrase(rng, muscles, duration, jaw=False):
     values = {m: [0.0] for m in names}
     for t0 in starts:
         t1 = min(t0 + rng.uniform(0.02, 0.08), duration)
-        chosen = set(rng.choice(muscles, int(rng.integers(1, 6)), replace=False))
+        k = min(int(rng.integers(1, 6)), len(muscles))     # fewer driven: all of them
+        chosen = set(rng.choice(muscles, k, replace=False))
         for m in names:
             if m == "jaw_opening":
                 new = (rng.uniform(0.0, JAW_RANGES[m][1]) if rng.random() < 0.7
@@ -226,7 +227,8 @@ def snapshot_tasks(scene, runs, duration, interval, seed, max_wall=None, jaw_run
                  rng, driven, duration, order[i % len(order)] if i < 2 * len(order) else None)}
              for i in range(runs)]
     for i in range(jaw_runs):
-        muscles = rng.choice(driven, rng.integers(1, 4), replace=False) if driven else []
+        muscles = (rng.choice(driven, min(int(rng.integers(1, 4)), len(driven)), replace=False)
+                   if driven else [])
         sched = tuple(_ramp(rng, str(m), rng.uniform(0.1, 1.0), duration) for m in muscles)
         sched += random_jaw(rng, duration, (5.0, JAW_RANGES["jaw_opening"][1]))
         tasks.append({"label": f"jaw pattern {i}", "schedules": sched})
