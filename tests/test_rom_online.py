@@ -283,6 +283,41 @@ def test_rom_follows_the_full_model_while_the_jaw_opens(trained_jaw):
     assert rom.mode == "rom" and rom.jaw == tuple(res["P"][-1])
 
 
+def test_rom_keeps_the_tissues_volume_as_the_full_model_while_the_jaw_opens(trained_jaw):
+    """Volume measured outside both models: each brick's volume from the displacements
+    (Gauss weights det J of X + u, solver.core.element.reference_geometry) along the run
+    that opens the jaw. The tissue's volume changes as the full model's does (K / mu =
+    500: not zero) and no brick's volume departs from the full state's by more than the
+    largest change of a brick in the full run. (A reduced model whose volume
+    constraint is relaxed fails this: its tissue loses twice the full model's volume.)"""
+    from solver.core.element import reference_geometry
+    from solver.rom.train import drive
+    m = trained_jaw
+    rom = open_simulation(m["scene"], fidelity="realtime", rom_model=m["path"],
+                          loaded_anatomy=m["full"].anatomy, trust="off")
+    i = next(i for i, t in enumerate(m["tasks"]) if t["label"].startswith("jaw"))
+    task, res = m["tasks"][i], m["results"][i]
+    us = []
+    drive(rom, task["schedules"], task["duration"], task["interval"],
+          lambda s: us.append(s.u.reshape(-1, 3).copy()))
+    mesh = rom.anatomy.mesh
+    vol0 = mesh.volumes
+
+    def change(u):                                     # (bricks,) v - V, mm^3
+        return reference_geometry(mesh.nodes + u, mesh.bricks)[0].sum(axis=1) - vol0
+    assert len(us) == res["U"].shape[1]
+    total, total_full, brick, brick_full = [], [], [], []
+    for k, u in enumerate(us):
+        dv, dvf = change(u), change(res["U"][:, k].reshape(-1, 3))
+        total.append(abs(dv.sum()))
+        total_full.append(abs(dvf.sum()))
+        brick.append(np.abs(dv - dvf).max())
+        brick_full.append(np.abs(dvf).max())
+    assert 0.0 < max(total_full) < 1e-3 * vol0.sum()
+    assert max(total) <= 1.25 * max(total_full), (max(total), max(total_full))
+    assert max(brick) <= max(brick_full), (max(brick), max(brick_full))
+
+
 def test_a_jaw_pose_outside_the_training_envelope_falls_back_with_a_warning(trained_jaw):
     m = trained_jaw
     from solver.face.jaw import JAW_INPUTS, JAW_RANGES
