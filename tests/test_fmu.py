@@ -12,6 +12,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -54,9 +55,19 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     assert variables["incisor_opening"][0].get("unit") == "mm"
 
 
-@pytest.mark.skipif(shutil.which("fmutool") is None, reason="fmu-manipulation-toolbox absent")
+def _script(name):
+    """An installed console script: beside this interpreter (a venv that is not activated
+    has its scripts off PATH), else on PATH; None if neither."""
+    here = Path(sys.executable).parent / name
+    return str(here) if here.is_file() else shutil.which(name)
+
+
+FMUTOOL = _script("fmutool")
+
+
+@pytest.mark.skipif(FMUTOOL is None, reason="fmu-manipulation-toolbox absent")
 def test_fmutool_check(fmu):
-    run = subprocess.run(["fmutool", "-input", str(fmu), "-check"], capture_output=True,
+    run = subprocess.run([FMUTOOL, "-input", str(fmu), "-check"], capture_output=True,
                          text=True, timeout=120)
     text = run.stdout + run.stderr
     assert run.returncode == 0 and "compliant" in text and "ERROR" not in text, text

@@ -76,34 +76,56 @@ print(json.dumps({"told": told, "config": numba.config.THREADING_LAYER}))
     assert res == {"told": {"threading_layer": "safe", "svml": False}, "config": "safe"}
 
 
-def test_configure_numba_too_late_warns_naming_the_running_layer():
-    res = _child("""
-import json, warnings
+_TOO_LATE = """
+import json, sys, warnings
+for name in {hidden!r}:                 # a layer this environment cannot load
+    sys.modules[f"numba.np.ufunc.{{name}}pool"] = None
 import numba
-numba.config.THREADING_LAYER = "forksafe"
 @numba.njit(parallel=True)
 def total(n):
     s = 0
     for i in numba.prange(n):
         s += i
     return s
-try:
-    total(10)
-except ValueError:                      # neither TBB nor OpenMP here
-    print(json.dumps({"layer": None}))
+# a layer other than configure_numba's, whichever of them loads here: 'forksafe' would
+# fall back to workqueue where TBB's library is off the loader's path (a venv's pip tbb)
+for layer in ("tbb", "omp"):
+    numba.config.THREADING_LAYER = layer
+    try:
+        total(10)
+        break
+    except ValueError:
+        pass
+else:
+    print(json.dumps({{"layer": None}}))
     raise SystemExit(0)
 import solver
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     solver.configure_numba()
-print(json.dumps({"layer": numba.threading_layer(),
-                  "warnings": [str(w.message) for w in caught]}))
-""")
+print(json.dumps({{"layer": numba.threading_layer(),
+                  "warnings": [str(w.message) for w in caught]}}))
+"""
+
+
+def _too_late(hidden=()):
+    """Launch TBB or OpenMP (the first that loads, the hidden ones left out), then call
+    configure_numba; returns {"layer": the running layer or None, "warnings": [...]}."""
+    return _child(_TOO_LATE.format(hidden=tuple(hidden)))
+
+
+@pytest.mark.parametrize("hidden", [(), ("tbb",)], ids=["any", "without-tbb"])
+def test_configure_numba_too_late_warns_naming_the_running_layer(hidden):
+    res = _too_late(hidden)
     if res["layer"] is None:
-        pytest.skip("no TBB or OpenMP threading layer in this environment")
-    assert res["layer"] != "workqueue"
+        pytest.skip("neither numba's TBB nor its OpenMP layer loads in this environment")
+    assert res["layer"] in ("tbb", "omp")
     assert any(repr(res["layer"]) in w and "configure_numba() before" in w
                for w in res["warnings"]), res
+
+
+def test_with_no_layer_to_launch_the_warning_test_has_nothing_to_check():
+    assert _too_late(("tbb", "omp")) == {"layer": None}
 
 
 def _module_imports(path):
