@@ -1,4 +1,5 @@
-"""Backward Euler: lowest-mode frequency, energy decay, order of convergence, substeps."""
+"""BDF2 and backward Euler: lowest-mode frequency, energy decay, order of convergence,
+substeps, error control, history across caller steps and rollbacks."""
 
 import numpy as np
 import pytest
@@ -27,14 +28,14 @@ def _lowest_frequency(mesh, model):
     return np.sqrt(w2) / (2 * np.pi)
 
 
-def _released(steps_per_period):
+def _released(steps_per_period, method="bdf2"):
     mesh, model, tip = _bar()
     f_lin = _lowest_frequency(mesh, model)
     model.add_force(tip, (0.0, 0.0, -1e-6))          # small: the linear regime
     assert model.solve_static().converged
     model.forces.target[:] = 0.0
     dt = 1.0 / f_lin / steps_per_period
-    tr = Transient(model, alpha=0.0, beta=0.0, fixed_step=dt)
+    tr = Transient(model, alpha=0.0, beta=0.0, fixed_step=dt, method=method)
     ts, zs, energy = [], [], []
     for _ in range(int(2.2 * steps_per_period)):
         tr.advance(tr.t + dt)
@@ -48,22 +49,28 @@ def _released(steps_per_period):
 
 
 def test_released_block_oscillates_at_the_lowest_mode_and_loses_energy():
-    f_lin, f_num, energy = _released(60)
+    f_lin, f_num, energy = _released(60, "backward_euler")
     assert f_num == pytest.approx(f_lin, rel=0.02)
     # backward Euler dissipates: energy never rises, and falls by a visible amount
     assert np.all(np.diff(energy) <= 1e-12 * energy[0])
     assert energy[-1] < 0.7 * energy[0]
+    # BDF2 dissipates too (L-stable), but over 2.2 periods at 60 steps a period it keeps
+    # nearly all of the energy: its numerical damping is of order (w h)^3, not (w h)
+    f2, f2_num, energy2 = _released(60, "bdf2")
+    assert f2_num == pytest.approx(f2, rel=0.005)
+    assert np.all(np.diff(energy2[1:]) <= 1e-12 * energy2[0])
+    assert 0.9 * energy2[0] < energy2[-1] < energy2[0]
 
 
-def _step_response(dt, t_end=0.02):
+def _step_response(dt, t_end=0.02, method="backward_euler"):
     mesh, model, tip = _bar()
     model.add_force(tip, (0.0, 0.0, -2e-5))
-    tr = Transient(model, fixed_step=dt, hold="step")
+    tr = Transient(model, fixed_step=dt, hold="step", method=method)
     tr.advance(t_end)
     return model.u[tip, 2].mean()
 
 
-def test_halving_dt_shows_first_order_convergence():
+def test_halving_dt_shows_first_order_convergence_of_backward_euler():
     # two first-order errors of opposite signs (backward Euler's, and the damping matrix
     # built on the substep's start shape) balance at coarse steps: asymptotic from 32 on
     ref = _step_response(0.02 / 1024)
@@ -148,15 +155,18 @@ def test_held_activation_settles_on_the_static_equilibrium():
 
 def test_step_error_leaves_out_the_nodes_in_contact():
     """The local error estimate skips nodes a contact pushed on at either end of the
-    substep (their velocity jumps at impact: the penalty's stiff mode), not the others."""
-    dv = np.zeros(9)
-    dv[0:3], dv[3:6], dv[6:9] = 5.0, -1.0, 0.5      # node 0 hits, node 1 touches, node 2 free
-    h = 2e-3
+    substep (their velocity jumps at impact: the penalty's stiff mode), not the others;
+    it is the weighted max norm |est| / (atol + rtol |u|)."""
+    est = np.zeros(9)
+    est[0:3], est[3:6], est[6:9] = 5.0, -1.0, 0.5      # node 0 hits, node 1 touches, 2 free
     before, after = np.array([False, True, False]), np.array([True, True, False])
-    assert Transient._error(dv, h, before, after) == pytest.approx(0.5 * h * 0.5)
-    assert Transient._error(dv, h, None, after) == pytest.approx(0.5 * h * 5.0)   # unknown
+    u = np.zeros(9)
+    assert Transient._error(est, u, 0.1, 0.0, before, after) == pytest.approx(5.0)
+    assert Transient._error(est, u, 0.1, 0.0, None, after) == pytest.approx(50.0)  # unknown
     nothing = np.zeros(3, dtype=bool)
-    assert Transient._error(dv, h, nothing, nothing) == pytest.approx(0.5 * h * 5.0)
+    assert Transient._error(est, u, 0.1, 0.0, nothing, nothing) == pytest.approx(50.0)
+    u[6:9] = 4.0                                        # rtol: relative to the displacement
+    assert Transient._error(est, u, 0.1, 0.1, before, after) == pytest.approx(0.5 / 0.5)
 
 
 def test_a_step_repeated_after_set_state_repeats_exactly_with_contact():
@@ -195,11 +205,11 @@ def test_a_refused_step_keeps_the_activations_it_started_with(monkeypatch):
 
     def second_fails(self, sysm, u_n, *args, **kwargs):
         starts.append(u_n.copy())
-        u, rep = real(self, sysm, u_n, *args, **kwargs)
+        u, v, est, rep = real(self, sysm, u_n, *args, **kwargs)
         if not np.array_equal(u_n, starts[0]):     # a substep after an accepted one
             rep.reason = "made to fail"
-            return None, rep
-        return u, rep
+            return None, None, None, rep
+        return u, v, est, rep
     monkeypatch.setattr(Transient, "_substep", second_fails)
     sim.set_activations({"OOP": 0.9})
     stats = sim.step(sim.t + 0.02)                  # several substeps
@@ -207,8 +217,48 @@ def test_a_refused_step_keeps_the_activations_it_started_with(monkeypatch):
     assert any(not np.array_equal(u, starts[0]) for u in starts)    # one was accepted
     after = sim.get_state()
     assert after["t"] == before["t"]
-    for key in ("u", "v", "activation"):
+    for key in ("u", "v", "activation", "u_prev", "v_prev", "h_prev", "err_prev"):
         assert np.array_equal(after[key], before[key]), key
     monkeypatch.undo()
     sim.set_activations({"OOP": 0.9})
     assert sim.step(sim.t + 0.005).converged        # and the next step works
+
+
+def _smooth_gesture(h, method, anatomy=None, span=0.04):
+    """The lip outputs (aperture, protrusion, width; mm) every 5 ms of a smooth gesture
+    (LLSAN, OOP and RIS along 1 - cos over span, no contact) on the coarse face, at fixed
+    substeps h with caller steps of h (each sees its activations at its end), Newton
+    converged tightly; and the anatomy, to reuse."""
+    from solver.app.scene import parse_scene
+    from solver.app.simulation import Simulation
+    from solver.validation.stability import lip_outputs, scene_dict
+    sc = scene_dict("smooth", ("LLSAN", "OOP", "RIS"), lips=False, teeth=False)
+    sc["solver"].update(newton_rtol=1e-10, newton_utol=1e-9, integrator=method)
+    sim = Simulation(parse_scene(sc), loaded_anatomy=anatomy)
+    sim.integrator.fixed_step = h
+    n, every = int(round(span / h)), int(round(0.005 / h))
+    rows = []
+    for k in range(1, n + 1):
+        s = 0.5 * (1.0 - np.cos(np.pi * k * h / span))
+        sim.set_activations({"LLSAN": 0.8 * s, "OOP": 0.4 * s, "RIS": 0.3 * s})
+        assert sim.step(k * h).converged
+        if k % every == 0:
+            out = lip_outputs(sim)
+            rows.append([out["lip_aperture"], out["lip_protrusion"], out["lip_width"]])
+    return np.array(rows), sim.anatomy
+
+
+def test_bdf2_lip_outputs_converge_at_second_order_and_backward_euler_at_first():
+    """Against a tiny-step reference (h / 4 of the smallest h over 16), the largest error
+    of the lip outputs falls as h^2 with BDF2 (fitted slope >= 1.8) and as h with backward
+    Euler (the same fit tells them apart)."""
+    hs = np.array([0.005, 0.0025, 0.00125])
+    slopes = {}
+    anatomy = None
+    for method in ("bdf2", "backward_euler"):
+        ref, anatomy = _smooth_gesture(0.04 / 256, method, anatomy)
+        assert np.ptp(ref[:, 1]) > 1.0 and np.ptp(ref[:, 2]) > 1.0     # the lips moved
+        errs = [np.abs(_smooth_gesture(h, method, anatomy)[0] - ref).max() for h in hs]
+        slopes[method] = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert slopes["bdf2"] >= 1.8, slopes
+    assert slopes["backward_euler"] < 1.5, slopes

@@ -56,7 +56,11 @@ recorded outputs and, for standalone runs, activation schedules.
     newton_utol = 1e-5              # mm, Newton's last update
     lip_penalty = 1.0               # N/mm^3, the lip/lip contact's penalty (contact pressure
                                     # per mm of penetration; solver/face/terms/contact.py)
-    substep_tol = 1e-3              # mm, local error per substep
+    integrator = "bdf2"             # | "backward_euler" (first order, for verification)
+    substep_tol = 1e-3              # mm, the local error's absolute tolerance (atol)
+    substep_rtol = 0.0              # the local error's tolerance relative to each DOF's
+                                    # displacement: a substep is kept when every
+                                    # |error| <= substep_tol + substep_rtol |u| (solver/core/transient.py)
     max_substep = 5e-3              # s
     min_substep = 1e-7              # s
     hold = "ramp"                   # activations within a step: "ramp" | "step"
@@ -169,7 +173,9 @@ class Scene:
     newton_rtol: float = 1e-6
     newton_utol: float = 1e-5
     lip_penalty: float = PENALTY
+    integrator: str = "bdf2"
     substep_tol: float = 1e-3
+    substep_rtol: float = 0.0
     max_substep: float = 5e-3
     min_substep: float = 1e-7
     hold: str = "ramp"
@@ -320,7 +326,9 @@ SECTIONS = {
                "newton_rtol": ("newton_rtol", _number(0.0, 1e-1, strict_lo=True)),
                "newton_utol": ("newton_utol", _number(0.0, 1.0, strict_lo=True)),
                "lip_penalty": ("lip_penalty", _number(0.0, 1e3, strict_lo=True)),
+               "integrator": ("integrator", _choice(("bdf2", "backward_euler"))),
                "substep_tol": ("substep_tol", _number(0.0, strict_lo=True)),
+               "substep_rtol": ("substep_rtol", _number(0.0, 1.0)),
                "max_substep": ("max_substep", _number(0.0, strict_lo=True)),
                "min_substep": ("min_substep", _number(0.0, strict_lo=True)),
                "hold": ("hold", _choice(("ramp", "step")))},

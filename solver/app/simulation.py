@@ -102,7 +102,8 @@ class Simulation:
         if sc.analysis == "transient":
             self.integrator = Transient(model, density, sc.alpha, sc.beta, sc.inertia,
                                         sc.damping, sc.substep_tol, sc.max_substep,
-                                        sc.min_substep, sc.hold)
+                                        sc.min_substep, sc.hold, method=sc.integrator,
+                                        rtol=sc.substep_rtol)
         self.t = 0.0
         self.last = StepStats()
 
@@ -225,15 +226,25 @@ class Simulation:
         caches that steer its next step (the reduced model's) drops them, so that the next
         step equals one after set_state of this state (False: a plain read, for a caller
         that only looks; nothing here to drop)."""
+        tr = self.integrator
+        hist = tr.history if tr is not None else None
+        zero = np.zeros_like(self.face.u)
         return {"t": self.t, "u": self.face.u.copy(), "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(),
                 "jaw": np.array(self.jaw),
-                "h": self.integrator.h if self.integrator is not None else 0.0,
+                "h": tr.h if tr is not None else 0.0,
+                # the integrator's history (BDF2: the state one substep back; h_prev 0:
+                # none) and its step controller's last error
+                "u_prev": hist[0].copy() if hist else zero,
+                "v_prev": hist[1].copy() if hist else zero,
+                "h_prev": hist[2] if hist else 0.0,
+                "err_prev": tr.err_prev if tr is not None else 1.0,
                 "pattern": self.face.model.system().snapshot()}
 
     def set_state(self, state):
         """Resume from a get_state dict: time, displacements, velocities, activations,
-        jaw pose, substep size and the contact's sparsity pattern (without "pattern": one
+        jaw pose, substep size, the integrator's history (without it: none, the next substep
+        a backward Euler one) and the contact's sparsity pattern (without "pattern": one
         picked at u)."""
         self.t = float(state["t"])
         self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
@@ -246,3 +257,8 @@ class Simulation:
             self.integrator.v = np.array(state["v"], dtype=float).reshape(-1, 3)
             self.integrator.h = float(state["h"])
             self.integrator.t = self.t
+            h_prev = float(state.get("h_prev", 0.0))
+            self.integrator.history = None if h_prev <= 0.0 else (
+                np.array(state["u_prev"], dtype=float).reshape(-1, 3),
+                np.array(state["v_prev"], dtype=float).reshape(-1, 3), h_prev)
+            self.integrator.err_prev = float(state.get("err_prev", 1.0))

@@ -1,60 +1,66 @@
-r"""Implicit time stepping: backward Euler with error-controlled adaptive substeps.
+r"""Implicit time stepping: variable-step BDF2 (default) or backward Euler, with
+error-controlled adaptive substeps.
 
-Why backward Euler: the face is strongly overdamped (with alpha = 40 1/s and beta = 0.03 s
-every mode has a damping ratio >= 1.1) and stiff (K/mu = 500), so the integrator must be
-L-stable: high modes are damped out, never amplified, whatever the step. Backward Euler is
-L-stable and first order; it dissipates energy (with alpha = beta = 0 a released block
-oscillates with a decaying amplitude: for a mode of frequency w the amplitude shrinks by
-1/sqrt(1 + (w h)^2) per step and the frequency is low by about (w h)^2 / 3).
+The face is strongly overdamped (alpha = 40 1/s and beta = 0.03 s give every mode a
+damping ratio >= 1.1) and stiff (K/mu = 500), so the integrator must be L-stable: high
+modes are damped out, never amplified, whatever the step. Both methods are; docs/method.md
+argues the choice of BDF2 among the second-order ones.
 
-Equations for the step t_n -> t_n + h, with u = u_{n+1}:
-v_{n+1} = (u - u_n)/h, a_{n+1} = (v_{n+1} - v_n)/h and M a + C v + f_int(u) = f_ext,
-solved by Newton (solver.core.newton) with the inertia and damping terms.
+Methods, for the step t_n -> t_{n+1} = t_n + h with u = u_{n+1} and the step ratio
+w = h / h_{n-1}: the velocity and acceleration of the end state are
+
+    v_{n+1} = (a0 u + a1 u_n + a2 u_{n-1}) / h,   a_{n+1} = (a0 v_{n+1} + a1 v_n + a2 v_{n-1}) / h
+    BDF2: a0 = (1 + 2w)/(1 + w), a1 = -(1 + w), a2 = w^2/(1 + w);   backward Euler: 1, -1, 0
+
+and M a + C v + f_int(u) = f_ext is solved by Newton (solver.core.newton). Both are the
+form v = c (u - u_d), a = c^2 (u - u_m) with c = a0 / h (Stage; solver.core.terms.inertia).
+BDF2 is second order and needs one substep of history (u_{n-1}, v_{n-1}, h_{n-1}), which
+the state carries across caller steps (``history``); its first substep, with none, is a
+backward Euler one. Variable-step BDF2 is zero-stable for w < 1 + sqrt 2: the controller
+grows a step by at most 2.
+
+Local error estimate (Milne's device): the difference between the corrector u and an
+explicit predictor p of the same order, scaled by the ratio of their error constants,
+
+    BDF2: est = (1 + w)/(2 + 3 w) (u - p),  p = u_n + h v_n + h^2 (u_{n-1} - u_n + h_{n-1} v_n)/h_{n-1}^2
+    backward Euler: est = (u - u_n - h v_n) / 2 = h/2 (v_{n+1} - v_n)
+
+(the constants come from both formulas' errors on a cubic, resp. a quadratic). It is
+measured in the weighted max norm err = max_i |est_i| / (atol + rtol |u_i|) over the DOFs
+(atol in mm, rtol relative to the DOF's displacement); a substep is accepted when err <= 1.
+Max, not RMS: the lips are a small part of the face, whose bulk barely moves; an RMS
+would let their error hide behind it. The next step comes from a PI controller (Gustafsson
+1991) with k = order + 1: h_new = h 0.9 err^(-0.7/k) err_prev^(0.4/k), within [0.3, 2] h
+(backward Euler: the I controller h 0.9 err^(-1/2)); a rejected step is retried at
+h max(0.3, 0.9 err^(-1/k)).
+
+Contact onset and release: nodes in contact are left out of the estimate: those that a
+nonsmooth term (contact, ``Term.nonsmooth``) pushed on at either end of the substep. Their
+velocity jumps at an impact or a release and, while they touch, follows the penalty's stiff
+mode (a penalty stops a node within sqrt(m / k), microseconds), which no step resolves;
+the estimate there would only collapse the steps. The rest of the face, the neighbours of
+those nodes included, still sets it; leaving the contact nodes out moves the lip outputs
+of benchmarks/accuracy_vs_time.py's runs by 0.002 mm at most (docs/accuracy.md).
+
+Damping matrix: C = alpha M + beta K_n is built once per substep and held fixed within it
+(solver.core.terms.inertia), on the start state for backward Euler and on the predicted
+end state u_n + h v_n for BDF2 (built on the start state it would cost BDF2 its order).
 
 Substeps: a caller's step [t0, t1] is split as needed and lands exactly on t1. Loads (the
 activations, prescribed displacements, forces) ramp linearly from their values at t0 to
 their targets at t1 (``hold="ramp"``, a first-order hold) or jump at t0 (``hold="step"``).
-Local error estimate of a substep: err = h/2 ||v_{n+1} - v_n||_inf (mm), the difference
-between backward and forward Euler displacements; a substep is accepted when
-err <= tol, and the next step is h * clip(0.9 sqrt(tol / err), 0.3, 2), at most max_substep.
-Nodes in contact are left out: those that a nonsmooth term (contact, ``Term.nonsmooth``)
-pushed on at either end of the substep. Their velocity jumps at an impact or a release and,
-while they touch, follows the penalty's stiff mode (a penalty stops a node within
-sqrt(m / k), microseconds), which no step resolves; the estimate there would only shrink
-the steps (on the paper-level gesture of benchmarks/fast_path.py such a node holds the
-largest estimate in nearly every rejected substep). The rest of the face, the neighbours
-of those nodes included, still sets it; leaving the contact nodes out moves the lip
-outputs of benchmarks/accuracy_vs_time.py's runs by 0.002 mm at most (docs/accuracy.md).
 A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
-the caller's step fails and the model goes back to its state at t0.
+the caller's step fails and the model goes back to its state at t0. A substep shortened
+to land on t1 does not shrink the next proposal (were it to, 10 ms caller steps with 5 ms
+substeps would run 1.7, 3.3 and 5 ms substeps); with ``even_steps`` the span left is split
+into equal substeps of at most the proposal.
 
-Landing on t1: a substep shortened to land on t1 (h < the proposal) does not shrink the
-next proposal: that is the larger of the proposal and h times the growth factor, when
-the factor is >= 1. (Were the shortened step's growth to set it, caller steps of 10 ms
-with 5 ms substeps would run a 1.7 ms remnant, then 3.3 ms and 5 ms substeps and another
-remnant: three substeps per caller step where two do.) The remnant
-R - (n - 1) h of a caller step may still be tiny. With ``even_steps`` the span left,
-R = t1 - t, is split into n = ceil(R / h) equal substeps of R / n <= h (each still
-error-controlled). Off by default: on the gesture of benchmarks/fast_path.py it changes
-the substep sequence through the lip contact for the worse (more Newton iterations, no
-fewer substeps).
-
-Newton's start (warm start, ``predictor``): "velocity" u_n + h v_n (default), "quadratic"
-u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}) (the velocity extrapolated from the last two
-substeps of the same caller step; velocity for the first), "none" u_n. Where Newton fails
-from a predictor it is tried once more from u_n before the cutback. The predictor moves
-only the start of the iteration, not the converged u_{n+1} (to the Newton tolerance).
-"quadratic" takes more Newton iterations than "velocity" on the reference face's gesture
-of benchmarks/fast_path.py, hence the default.
-Each caller step starts with a new factorization of the tangent (Newton reuses it over
-the substeps, solver.core.newton), so that a step repeated from the same state (an FMU
-rollback) repeats exactly. Newton's key, what the tangent depends on besides u, is the
-substep size to 10 significant digits (the substep that lands on t1, t1 - t, is a few ulps
-off the split's size) and the damping matrix's generation (solver.core.terms.inertia: K_n is
-rebuilt on each substep's start state by default, and beta K_n / h is the tangent's
-largest part, so a factorization then serves one substep: one made on the previous
-substep leaves a large part of the residual in its linear model, and its step is
-dropped).
+Newton's start (``predictor``): "velocity" u_n + h v_n (default), "quadratic"
+u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}), "none" u_n; where Newton fails from a
+predictor it is tried once more from u_n before the cutback. Each caller step starts with
+a new factorization of the tangent, so that a step repeated from the same state (an FMU
+rollback) repeats exactly; Newton's key, what the tangent depends on besides u, is c to 10
+significant digits and the damping matrix's generation.
 """
 
 from dataclasses import dataclass, field
@@ -68,6 +74,7 @@ from solver.core.terms.inertia import Damping, Inertia
 from solver.core.units import TISSUE_DENSITY
 
 PREDICTORS = ("velocity", "quadratic", "none")
+METHODS = ("bdf2", "backward_euler")
 
 
 @dataclass
@@ -86,30 +93,57 @@ class StepStats:
     history: list = field(default_factory=list)     # (t, h, iterations) per accepted substep
 
 
+@dataclass(frozen=True)
+class Stage:
+    """One substep as the inertia and damping terms see it: v = c (u - u_d) and
+    a = c^2 (u - u_m) at the end state u; the damping matrix is built on u_g. c in 1/s,
+    the points (3 n,) in mm."""
+
+    c: float
+    u_d: np.ndarray
+    u_m: np.ndarray
+    u_g: np.ndarray
+
+
+def coefficients(h, h_prev):
+    """(a0, a1, a2) of v_{n+1} = (a0 u_{n+1} + a1 u_n + a2 u_{n-1}) / h: BDF2 with the step
+    ratio w = h / h_prev, or backward Euler (1, -1, 0) when h_prev is None."""
+    if h_prev is None:
+        return 1.0, -1.0, 0.0
+    w = h / h_prev
+    return (1.0 + 2.0 * w) / (1.0 + w), -(1.0 + w), w * w / (1.0 + w)
+
+
 class Transient:
     """Time stepping of a solver.Model (or a FaceModel's model).
 
     density tonne/mm^3; alpha 1/s, beta s; inertia / damping: include the terms;
-    tol: local error tolerance (mm); max_substep, min_substep (s); hold 'ramp' | 'step';
-    fixed_step: if set, substeps of exactly that size (no error control; tests of order);
-    predictor 'velocity' | 'quadratic' | 'none' and even_steps: see the module docstring.
+    method 'bdf2' | 'backward_euler'; tol: the error's absolute tolerance atol (mm), rtol:
+    its relative one; max_substep, min_substep (s); hold 'ramp' | 'step'; fixed_step: if
+    set, substeps of exactly that size (no error control; tests of order); predictor
+    'velocity' | 'quadratic' | 'none' and even_steps: see the module docstring.
     """
 
     def __init__(self, model, density=TISSUE_DENSITY, alpha=40.0, beta=0.03, inertia=True,
                  damping=True, tol=1e-3, max_substep=5e-3, min_substep=1e-7, hold="ramp",
-                 max_cutbacks=8, fixed_step=None, predictor="velocity", even_steps=False):
+                 max_cutbacks=8, fixed_step=None, predictor="velocity", even_steps=False,
+                 method="bdf2", rtol=0.0):
         for name, v in (("density", density), ("alpha", alpha), ("beta", beta)):
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name} = {v!r} must be a finite number >= 0")
-        if not (tol > 0 and max_substep > 0 and 0 < min_substep <= max_substep):
-            raise ParameterError("need tol > 0 and 0 < min_substep <= max_substep")
+        if not (tol > 0 and rtol >= 0 and max_substep > 0
+                and 0 < min_substep <= max_substep):
+            raise ParameterError("need tol > 0, rtol >= 0 and 0 < min_substep <= max_substep")
         if hold not in ("ramp", "step"):
             raise ParameterError(f"hold = {hold!r} must be 'ramp' or 'step'")
         if predictor not in PREDICTORS:
             raise ParameterError(f"predictor = {predictor!r} must be one of {PREDICTORS}")
-        self.predictor, self.even_steps = predictor, even_steps
+        if method not in METHODS:
+            raise ParameterError(f"method = {method!r} must be one of {METHODS}")
+        self.predictor, self.even_steps, self.method = predictor, even_steps, method
         self.model = model
-        self.tol, self.max_substep, self.min_substep = tol, max_substep, min_substep
+        self.tol, self.rtol = tol, rtol
+        self.max_substep, self.min_substep = max_substep, min_substep
         self.hold, self.max_cutbacks, self.fixed_step = hold, max_cutbacks, fixed_step
         self.step_terms = []
         mesh = model.mesh
@@ -134,7 +168,13 @@ class Transient:
         self.t = 0.0
         self.v = np.zeros_like(model.u)
         self.h = min(max_substep, 1e-3)
+        self.history = None            # BDF2: (u_{n-1}, v_{n-1}) (n, 3) and h_{n-1} (s)
+        self.err_prev = 1.0            # the PI controller's last accepted error
         self.dissipated = 0.0          # mJ: sum over substeps of h v^T C v (never negative)
+
+    @property
+    def order(self):
+        return 2 if self.method == "bdf2" else 1
 
     def energy(self):
         """(kinetic, stored) energy in mJ at the current state (stored: all potentials
@@ -151,27 +191,52 @@ class Transient:
         return kin, asm.energy
 
     def _predict(self, u_n, v_n, h, prev):
-        """Newton's start for the substep of size h from (u_n, v_n); prev: (v_{n-1},
-        h_{n-1}) of the same caller step, or None."""
+        """Newton's start for the substep of size h from (u_n, v_n); prev: (u_{n-1},
+        v_{n-1}, h_{n-1}), or None."""
         if self.predictor == "none":
             return u_n
         if self.predictor == "quadratic" and prev is not None:
-            return u_n + h * (v_n + h * (v_n - prev[0]) / prev[1])
+            return u_n + h * (v_n + h * (v_n - prev[1]) / prev[2])
         return u_n + h * v_n
 
+    def _stage(self, u_n, v_n, h, prev):
+        """The Stage of the substep h from (u_n, v_n) with history prev (or None: backward
+        Euler), and the error estimate's predictor and factor (module docstring)."""
+        h_prev = prev[2] if prev is not None else None
+        a0, a1, a2 = coefficients(h, h_prev)
+        u_pred = u_n + h * v_n
+        if h_prev is None:
+            u_d, b_a = u_n, -v_n
+            factor, p = 0.5, u_pred
+        else:
+            u_d = -(a1 * u_n + a2 * prev[0]) / a0
+            b_a = a1 * v_n + a2 * prev[1]
+            w = h / h_prev
+            p = u_pred + (h / h_prev) ** 2 * (prev[0] - u_n + h_prev * v_n)
+            factor = (1.0 + w) / (2.0 + 3.0 * w)
+        c = a0 / h
+        u_m = u_d - b_a / (a0 * c)
+        u_g = u_n if self.method == "backward_euler" else u_pred
+        return Stage(c, u_d, u_m, u_g), (a0, a1, a2), p, factor
+
     def _substep(self, sysm, u_n, v_n, h, targets, opts, prev=None):
+        stage, coef, p, factor = self._stage(u_n, v_n, h, prev)
         for term in self.step_terms:
-            term.prepare(h, u_n.reshape(-1, 3), v_n.reshape(-1, 3))
+            term.prepare(stage)
         lin = self.model.linear_solver
         u0 = self._predict(u_n, v_n, h, prev)
-        key = (float(f"{h:.9e}"), self.damping.generation if self.damping else 0)
+        key = (float(f"{stage.c:.9e}"), self.damping.generation if self.damping else 0)
         u, _, rep = newton(sysm, u0, targets, lin, opts, key=key)
         if u is None and u0 is not u_n:
             u, _, rep2 = newton(sysm, u_n, targets, lin, opts, key=key)
             rep2.iterations += rep.iterations
             rep2.factorizations += rep.factorizations
             rep = rep2
-        return u, rep
+        if u is None:
+            return None, None, None, rep
+        a0, a1, a2 = coef
+        v = (a0 * u + a1 * u_n + (a2 * prev[0] if a2 else 0.0)) / h
+        return u, v, factor * (u - p), rep
 
     def _size(self, h, t, t_end, h_last):
         """The next substep's size from the proposal h at t (module docstring); h_last
@@ -184,10 +249,20 @@ class Transient:
         h = span / n
         return h_last if h_last and abs(h - h_last) <= 1e-9 * h else h
 
+    def _grow(self, err, rejected=False):
+        """The factor for the next step size from the error err (weighted norm, accepted
+        at <= 1; module docstring)."""
+        k = self.order + 1
+        if err == 0.0:
+            return 2.0
+        if rejected or self.method == "backward_euler":
+            return min(2.0, max(0.3, 0.9 * err ** (-1.0 / k)))
+        return min(2.0, max(0.3, 0.9 * err ** (-0.7 / k) * self.err_prev ** (0.4 / k)))
+
     def advance(self, t_end):
         """Integrate from self.t to t_end (> self.t); returns StepStats. On failure the
-        model, velocity and time stay at their values at the start of the call. BLAS runs
-        on one thread meanwhile (solver.core.linsolve.single_threaded_blas)."""
+        model, velocity, history and time stay at their values at the start of the call.
+        BLAS runs on one thread meanwhile (solver.core.linsolve.single_threaded_blas)."""
         with single_threaded_blas():
             return self._advance(t_end)
 
@@ -204,21 +279,26 @@ class Transient:
         u, v = model.u.ravel().copy(), self.v.ravel().copy()
         p_start = u[pres].copy()
         u0, v0, d0 = u.copy(), v.copy(), self.dissipated
+        hist0, err0 = self.history, self.err_prev
         pattern0 = sysm.snapshot()
         touch = self._touching_at(sysm, u)                 # at u_n, from u_n alone
         stats = StepStats()
-        t, run, prev = t0, 0, None
+        t, run = t0, 0
+        prev = None
+        if self.method == "bdf2" and self.history is not None:
+            prev = (self.history[0].ravel(), self.history[1].ravel(), self.history[2])
         model.linear_solver.invalidate()
         h_prop = self.fixed_step or min(self.h, self.max_substep)
+        h_last = None
         while t < t_end - 1e-12 * max(1.0, abs(t_end)):
-            h = self._size(h_prop, t, t_end, prev[1] if prev else None)
+            h = self._size(h_prop, t, t_end, h_last)
             t_new = t + h
             if t_end - t_new < 1e-9 * span:
                 t_new, h = t_end, t_end - t
             lam = 1.0 if self.hold == "step" else (t_new - t0) / span
             sysm.lam, sysm.t = lam, t_new
             targets = model.path_targets(pres, p_start, p_target, lam)
-            u_new, rep = self._substep(sysm, u, v, h, targets, opts, prev)
+            u_new, v_new, est, rep = self._substep(sysm, u, v, h, targets, opts, prev)
             stats.newton_iterations += rep.iterations
             stats.factorizations += rep.factorizations
             if u_new is None:
@@ -230,35 +310,41 @@ class Transient:
                     model.u = u0.reshape(-1, 3)
                     self.v = v0.reshape(-1, 3)
                     self.dissipated = d0
+                    self.history, self.err_prev = hist0, err0
                     sysm.lam = 0.0
                     sysm.restore(u0, pattern0)
                     return stats
                 h_prop = h / 4
                 continue
             run = 0
-            v_new = (u_new - u) / h
             touch_new = self._touching(sysm)
-            err = self._error(v_new - v, h, touch, touch_new)
-            if self.fixed_step is None and err > self.tol and h > self.min_substep * 1.0001:
+            err = self._error(est, u_new, self.tol, self.rtol, touch, touch_new)
+            if self.fixed_step is None and err > 1.0 and h > self.min_substep * 1.0001:
                 stats.rejected += 1
-                h_prop = max(h * max(0.3, 0.9 * np.sqrt(self.tol / err)), self.min_substep)
+                h_prop = max(h * self._grow(err, rejected=True), self.min_substep)
                 continue
             if self.damping is not None:
                 self.dissipated += h * float(v_new.ravel() @ self.damping.force(v_new))
-            prev = (v, h)
+            if self.method == "bdf2":
+                prev = (u, v, h)
+            h_last = h
             u, v, t, touch = u_new, v_new, t_new, touch_new
             sysm.commit(u)
             stats.substeps += 1
             stats.h_min, stats.h_max = min(stats.h_min, h), max(stats.h_max, h)
             stats.history.append((t, h, rep.iterations))
             if self.fixed_step is None:
-                grow = 2.0 if err == 0 else min(2.0, max(0.3, 0.9 * np.sqrt(self.tol / err)))
+                grow = self._grow(err)
+                self.err_prev = max(err, 1e-4)
                 landed = h < h_prop and grow >= 1.0
                 h_prop = min(max(h * grow, h_prop) if landed else h * grow, self.max_substep)
                 self.h = h_prop
         self.t = t_end
         model.u = u.reshape(-1, 3).copy()
         self.v = v.reshape(-1, 3).copy()
+        if prev is not None:
+            self.history = (prev[0].reshape(-1, 3).copy(), prev[1].reshape(-1, 3).copy(),
+                            float(prev[2]))
         return stats
 
     @classmethod
@@ -279,14 +365,15 @@ class Transient:
         return np.logical_or.reduce(parts) if parts else None
 
     @staticmethod
-    def _error(dv, h, touch, touch_new):
-        """The local error estimate h/2 ||dv||_inf (mm) of a substep, dv (3 n,) its change
-        of velocity, over the nodes no contact pushed on at either end (touch, touch_new:
-        (n,) bool at its start and end, or None where unknown: then over all nodes)."""
-        a = np.abs(dv).reshape(-1, 3).max(axis=1)
+    def _error(est, u, atol, rtol, touch, touch_new):
+        """The weighted max norm max_i |est_i| / (atol + rtol |u_i|) of a substep's error
+        estimate est (3 n,) at its end state u (3 n,; mm), over the nodes no contact pushed
+        on at either end (touch, touch_new: (n,) bool at its start and end, or None where
+        unknown: then over all nodes). Accepted at <= 1."""
+        a = (np.abs(est) / (atol + rtol * np.abs(u))).reshape(-1, 3).max(axis=1)
         if touch is not None and touch_new is not None:
             a = a[~(touch | touch_new)]
-        return 0.5 * h * float(a.max(initial=0.0))
+        return float(a.max(initial=0.0))
 
 
 @dataclass
@@ -330,7 +417,7 @@ def relax(model, alpha=40.0, beta=0.03, ramp=0.1, chunk=0.1, t_max=2.0, tol=0.01
     lam_start = sysm.lam
     pattern_start = sysm.snapshot()
     tr = Transient(model, alpha=alpha, beta=beta, inertia=False, damping=True, tol=tol,
-                   max_substep=max_substep, hold="ramp")
+                   max_substep=max_substep, hold="ramp", method="backward_euler")
     res = RelaxResult()
     try:
         t_next = ramp

@@ -20,13 +20,17 @@ r += C (u - u_n) / h, K += C / h. Passive: the stiffening of active muscle does 
 follow stiffening, but it can lose definiteness (and with it dissipation) under compression
 and contact; with alpha = 40 1/s and beta = 0.03 s every mode is overdamped anyway.
 
-The integrator (solver.core.transient) gives each term the step h and the start state
-(u_n, v_n) through ``prepare``; in terms of u = u_{n+1} the backward Euler increments are
+The integrator (solver.core.transient) gives each term its substep through ``prepare``
+(a solver.core.transient.Stage): a linear multistep method writes the end state's velocity
+and acceleration as v = c (u - u_d) and a = c (v - v_d') = c^2 (u - u_m), with c (1/s) and
+the points u_d, u_m (mm) set by the method and the history (backward Euler: c = 1/h,
+u_d = u_n, u_m = u_n + h v_n). In terms of u = u_{n+1}:
 
-    Inertia:  r += M (u - u_n - h v_n) / h^2,   K += M / h^2,
-              Psi = (u - u_n - h v_n)^T M (u - u_n - h v_n) / (2 h^2)
-    Damping:  r += C (u - u_n) / h,             K += C / h,       (C built on x_n)
-              Psi = (u - u_n)^T C (u - u_n) / (2 h)
+    Inertia:  r += c^2 M (u - u_m),   K += c^2 M,   Psi = c^2 (u - u_m)^T M (u - u_m) / 2
+    Damping:  r += c C (u - u_d),     K += c C,     Psi = c (u - u_d)^T C (u - u_d) / 2
+
+with C built on the stage's configuration u_g (u_n for backward Euler; the predicted end
+state for BDF2, so that the damping matrix's change over a step costs no order).
 """
 
 import numpy as np
@@ -52,17 +56,18 @@ class Inertia(Term):
     def __init__(self, mesh, density):
         self.mass = lumped_masses(mesh, density)
         self.m3 = np.repeat(self.mass, 3)                         # (3 n,)
-        self.h = None
+        self.c = None
 
-    def prepare(self, h, u_n, v_n):
-        self.h, self.u_pred = h, (u_n + h * v_n).ravel()
+    def prepare(self, stage):
+        """Start a substep (solver.core.transient.Stage): a = c^2 (u - stage.u_m)."""
+        self.c, self.u_pred = stage.c, stage.u_m
 
     def assemble(self, state, asm, block_ids):
         d = state.u.ravel() - self.u_pred
-        f = self.m3 * d / self.h ** 2
+        f = (self.c ** 2) * self.m3 * d
         asm.residual += f
         asm.energy += 0.5 * float(d @ f)
-        asm.add_diagonal(self.m3 / self.h ** 2)
+        asm.add_diagonal((self.c ** 2) * self.m3)
 
     def kinetic_energy(self, v):
         return 0.5 * float(self.m3 @ (v.ravel() ** 2))
@@ -94,7 +99,7 @@ class Damping(Term):
         self.m3, self.elasticity, self.refresh = mass3, elasticity, refresh
         self.u_geom = None              # (n, 3) the configuration K_n was built on
         self._pattern, self._kdata = None, None
-        self.h = None
+        self.c = None
         self.builds = 0
         self.generation = 0             # counts the K_n due (prepare); a part of Newton's key
         self._due = False
@@ -102,21 +107,22 @@ class Damping(Term):
     def blocks(self):
         return [self.elasticity.bricks]
 
-    def prepare(self, h, u_n, v_n):
-        """Start a substep from (u_n, v_n): K_n is due for a rebuild (a new ``generation``)
-        when a node moved more than refresh since the last build."""
-        self.h, self.u_n = h, u_n.ravel().copy()
+    def prepare(self, stage):
+        """Start a substep (solver.core.transient.Stage): v = c (u - stage.u_d); K_n is due
+        for a rebuild (a new ``generation``) on stage.u_g when a node of it lies more than
+        refresh from the last build's."""
+        self.c, self.u_n, self._u_g = stage.c, stage.u_d, stage.u_g.reshape(-1, 3)
         if self.beta and (self.u_geom is None
-                          or np.abs(u_n - self.u_geom).max() > self.refresh):
+                          or np.abs(self._u_g - self.u_geom).max() > self.refresh):
             self.generation += 1
             self._due = True
 
     def _update(self, pattern, block):
-        """Build K_n (CSR data over pattern) on the substep's start state when due."""
+        """Build K_n (CSR data over pattern) on the stage's configuration when due."""
         if not (self._due or self._pattern is not pattern) or self.beta == 0.0:
             self._pattern = pattern
             return
-        u_n = self.u_n.reshape(-1, 3)
+        u_n = self._u_g
         self._kdata = np.zeros(pattern.nnz)
         scatter_matrices(passive_tangent(self.elasticity, u_n), pattern.index[block],
                          self._kdata)
@@ -134,11 +140,11 @@ class Damping(Term):
 
     def assemble(self, state, asm, block_ids):
         self._update(asm.pattern, block_ids[0])
-        v = (state.u.ravel() - self.u_n) / self.h
+        v = self.c * (state.u.ravel() - self.u_n)
         f = self.force(v)
         asm.residual += f
-        asm.energy += 0.5 * self.h * float(v @ f)
+        asm.energy += 0.5 * float(v @ f) / self.c
         if asm.need_k:
-            asm.add_diagonal(self.alpha * self.m3 / self.h)
+            asm.add_diagonal(self.c * self.alpha * self.m3)
             if self.beta:
-                asm.data += (self.beta / self.h) * self._kdata
+                asm.data += (self.c * self.beta) * self._kdata
