@@ -68,8 +68,9 @@ def _substep_case(scale, h=2e-3):
     tr = Transient(model, hold="step")
     sysm = model.system()
     u0 = np.zeros(sysm.ndof)
+    stage = tr._stage(u0, u0, h, None)[0]          # backward Euler from rest
     for term in tr.step_terms:
-        term.prepare(h, u0.reshape(-1, 3), u0.reshape(-1, 3))
+        term.prepare(stage)
     return sysm, np.zeros(len(sysm.prescribed)), u0
 
 
@@ -189,16 +190,19 @@ def test_even_steps_land_without_remnants_and_stay_accurate():
     assert np.abs(model.u - u_ref).max() < 0.05       # mm: both within the error control
 
 
-def test_caller_step_repeats_exactly_with_reuse():
+@pytest.mark.parametrize("method", ["backward_euler", "bdf2"])
+def test_caller_step_repeats_exactly_with_reuse(method):
     """Each caller step starts with a new factorization: a repeated step (an FMU rollback)
-    gives the same bits."""
+    gives the same bits (BDF2: with its history and its controller's last error put back)."""
     model = _bar()
-    tr = Transient(model, hold="step")
+    tr = Transient(model, hold="step", method=method)
     tr.advance(0.005)
-    u, v, h = model.u.copy(), tr.v.copy(), tr.h
+    u, v, h, hist, err = model.u.copy(), tr.v.copy(), tr.h, tr.history, tr.err_prev
+    assert (hist is not None) == (method == "bdf2")
     tr.advance(0.01)
     first = model.u.copy()
     model.u, tr.v, tr.h, tr.t = u.copy(), v.copy(), h, 0.005
+    tr.history, tr.err_prev = hist, err
     tr.advance(0.01)
     assert np.array_equal(model.u, first)
 

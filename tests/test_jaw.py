@@ -229,7 +229,7 @@ def test_a_failed_step_puts_the_jaw_back():
     sim.integrator.max_cutbacks = 0
     sim.integrator.min_substep = sim.integrator.max_substep = 1e-3
     original = sim.integrator._substep
-    sim.integrator._substep = lambda *a, **k: (None, original(*a, **k)[1])
+    sim.integrator._substep = lambda *a, **k: (None, None, None, original(*a, **k)[3])
     sim.set_jaw(8.0)
     assert not sim.step(0.02).converged
     sim.integrator._substep = original

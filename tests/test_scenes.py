@@ -72,6 +72,8 @@ def test_every_builtin_scene_states_its_effects(name):
     ('[anatomy]\nlevel = "ultra"\n', "anatomy.level"),
     ('[muscles]\ndriven = ["OOP", "XYZ"]\n', "muscles.driven"),
     ('[solver]\nmax_substep = -1.0\n', "solver.max_substep"),
+    ('[solver]\nintegrator = "rk4"\n', "solver.integrator"),
+    ('[solver]\nsubstep_rtol = -0.1\n', "solver.substep_rtol"),
     ('[[schedule]]\nmuscle = "OOP"\nkind = "ramp"\nstart = 0.2\nend = 0.1\nto = 1.0\n',
      "schedule.0"),
     ('[[schedule]]\nmuscle = "OOP"\nkind = "step"\ntime = 0.1\nvalue = 2.0\n', "schedule.0"),

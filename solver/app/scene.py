@@ -56,11 +56,11 @@ recorded outputs and, for standalone runs, activation schedules.
     newton_utol = 1e-5              # mm, Newton's last update
     lip_penalty = 1.0               # N/mm^3, the lip/lip contact's penalty (contact pressure
                                     # per mm of penetration; solver/face/terms/contact.py)
-    integrator = "bdf2"             # | "backward_euler" (first order, for verification)
+    integrator = "backward_euler"   # | "bdf2" (second order; solver/core/transient.py)
     substep_tol = 1e-3              # mm, the local error's absolute tolerance (atol)
-    substep_rtol = 0.0              # the local error's tolerance relative to each DOF's
-                                    # displacement: a substep is kept when every
-                                    # |error| <= substep_tol + substep_rtol |u| (solver/core/transient.py)
+    substep_rtol = 0.0              # its tolerance relative to each DOF's displacement: a
+                                    # substep is kept when every local error is at most
+                                    # substep_tol + substep_rtol |u|
     max_substep = 5e-3              # s
     min_substep = 1e-7              # s
     hold = "ramp"                   # activations within a step: "ramp" | "step"
@@ -173,7 +173,7 @@ class Scene:
     newton_rtol: float = 1e-6
     newton_utol: float = 1e-5
     lip_penalty: float = PENALTY
-    integrator: str = "bdf2"
+    integrator: str = "backward_euler"
     substep_tol: float = 1e-3
     substep_rtol: float = 0.0
     max_substep: float = 5e-3

@@ -1,4 +1,4 @@
-r"""Implicit time stepping: variable-step BDF2 (default) or backward Euler, with
+r"""Implicit time stepping: backward Euler (default) or variable-step BDF2, with
 error-controlled adaptive substeps.
 
 The face is strongly overdamped (alpha = 40 1/s and beta = 0.03 s give every mode a
@@ -127,7 +127,7 @@ class Transient:
     def __init__(self, model, density=TISSUE_DENSITY, alpha=40.0, beta=0.03, inertia=True,
                  damping=True, tol=1e-3, max_substep=5e-3, min_substep=1e-7, hold="ramp",
                  max_cutbacks=8, fixed_step=None, predictor="velocity", even_steps=False,
-                 method="bdf2", rtol=0.0):
+                 method="backward_euler", rtol=0.0):
         for name, v in (("density", density), ("alpha", alpha), ("beta", beta)):
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(f"{name} = {v!r} must be a finite number >= 0")
@@ -342,9 +342,8 @@ class Transient:
         self.t = t_end
         model.u = u.reshape(-1, 3).copy()
         self.v = v.reshape(-1, 3).copy()
-        if prev is not None:
-            self.history = (prev[0].reshape(-1, 3).copy(), prev[1].reshape(-1, 3).copy(),
-                            float(prev[2]))
+        self.history = None if prev is None else (
+            prev[0].reshape(-1, 3).copy(), prev[1].reshape(-1, 3).copy(), float(prev[2]))
         return stats
 
     @classmethod
