@@ -92,7 +92,6 @@ def test_export_fibres_follow_the_mesh(tmp_path):
 
 
 def test_export_xdmf(tmp_path):
-    pytest.importorskip("h5py")
     anatomy = _block_anatomy()
     paths = export_anatomy(anatomy, tmp_path / "b.xdmf")
     assert [p.name for p in paths] == ["b.xdmf", "b.h5", "b_muscles.xdmf", "b_muscles.h5"]

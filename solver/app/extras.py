@@ -3,8 +3,8 @@
     extra     installs                  for
     plot      matplotlib                pictures: solver.app.plot, `facefmu run`'s PNG,
                                         `facefmu anatomy --png`
-    export    meshio                    VTU and XDMF files: solver.app.io, `facefmu run --vtu`,
-                                        `facefmu anatomy --export`
+    export    meshio, h5py              VTU and XDMF files (XDMF's data in HDF5): solver.app.io,
+                                        `facefmu run --vtu`, `facefmu anatomy --export`
     sweep     dask[distributed], tqdm   parallel runs (solver.sweep), progress bars
     pardiso   pypardiso                 MKL PARDISO (solver.core.linsolve: `auto` takes it where
                                         it imports, else SuperLU)
