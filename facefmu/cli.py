@@ -144,6 +144,9 @@ def _run_arguments(parser):
 
 
 def _run(args):
+    from solver.core._cache import compile_notice, kernels_warm
+    if not kernels_warm():
+        print(f"facefmu run: {compile_notice()}", file=sys.stderr)
     if args.fidelity:
         from solver.app.fidelity import apply_fidelity
         from solver.app.simulation import resolve_scene

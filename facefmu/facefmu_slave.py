@@ -160,7 +160,10 @@ class FaceFMU(Fmi2Slave):
         self.time = float(start_time or 0.0)
 
     def exit_initialization_mode(self):
+        from solver.core._cache import compile_notice, kernels_warm
         from solver.entry import open_simulation
+        if not kernels_warm():
+            self.log(compile_notice(), Fmi2Status.ok)
         try:
             overrides = self._overrides()
             self._used = {p: getattr(self, p) for p in PARAMETERS}

@@ -166,3 +166,21 @@ def test_the_rule_catches_a_kernel_file_without_the_cache(tmp_path):
     (tmp_path / "rom" / "k.py").write_text("from numba import njit\n\n@njit(cache=True)\n"
                                            "def f(x):\n    return x\n")
     assert kernel_files_outside_the_cache(tmp_path) == ["rom/k.py"]
+
+
+def test_the_cache_tells_a_first_run_until_a_step_has_compiled_its_kernels(tmp_path,
+                                                                          monkeypatch):
+    """kernels_warm() is False in an empty cache and for other kernel sources, True once a
+    step has marked it; the notice names the cache."""
+    from solver.core import _cache
+    monkeypatch.setattr(_cache, "CACHE_DIR", tmp_path)
+    assert not _cache.kernels_warm()
+    assert str(tmp_path) in _cache.compile_notice()
+    _cache.mark_kernels_warm()
+    assert _cache.kernels_warm()
+    root = Path(_cache.__file__).resolve().parents[1]
+    monkeypatch.setitem(_cache._KERNEL_STAMP, root, "0" * 64)        # edited kernels
+    assert not _cache.kernels_warm()
+    monkeypatch.setattr(_cache, "CACHE_DIR", None)                 # no cache at all
+    assert not _cache.kernels_warm()
+    _cache.mark_kernels_warm()

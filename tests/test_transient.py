@@ -183,6 +183,8 @@ def test_a_step_repeated_after_set_state_repeats_exactly_with_contact(integrator
         assert sim.step(sim.t + 0.01).converged
     start = sim.get_state()
     assert (start["h_prev"] > 0) == (integrator == "bdf2")
+    from solver.core._cache import kernels_warm
+    assert kernels_warm()                       # a converged step marked the cache
     saved = FaceFMU._fmu_state_from_bytes(FaceFMU._fmu_state_to_bytes({"sim": start}))
     runs = []
     for state in (start, saved["sim"]):

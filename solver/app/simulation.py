@@ -26,6 +26,7 @@ from solver.app.fidelity import REDUCED, apply_fidelity
 from solver.core.materials import MooneyRivlin
 from solver.face.muscles import MuscleProperties
 from solver.app.scene import GRAVITY, Scene, load_scene
+from solver.core._cache import mark_kernels_warm
 from solver.core.transient import StepStats, Transient
 from solver.core.units import kg_per_m3
 
@@ -106,6 +107,7 @@ class Simulation:
                                         rtol=sc.substep_rtol)
         self.t = 0.0
         self.last = StepStats()
+        self._warm = False
 
     @property
     def term_names(self):
@@ -150,6 +152,9 @@ class Simulation:
                               cutbacks=res.cutbacks, reason=res.reason)
         if stats.converged:
             self.t = float(t_end)
+            if not self._warm:                  # the kernels a step needs are compiled
+                mark_kernels_warm()
+                self._warm = True
         self.last = stats
         return stats
 
@@ -228,15 +233,15 @@ class Simulation:
         that only looks; nothing here to drop)."""
         tr = self.integrator
         hist = tr.history if tr is not None else None
-        zero = np.zeros_like(self.face.u)
+        none = np.zeros((0, 3))
         return {"t": self.t, "u": self.face.u.copy(), "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(),
                 "jaw": np.array(self.jaw),
                 "h": tr.h if tr is not None else 0.0,
                 # the integrator's history (BDF2: the state one substep back; h_prev 0:
                 # none) and its step controller's last error
-                "u_prev": hist[0].copy() if hist else zero,
-                "v_prev": hist[1].copy() if hist else zero,
+                "u_prev": hist[0].copy() if hist else none,
+                "v_prev": hist[1].copy() if hist else none,
                 "h_prev": hist[2] if hist else 0.0,
                 "err_prev": tr.err_prev if tr is not None else 1.0,
                 "pattern": self.face.model.system().snapshot()}

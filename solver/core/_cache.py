@@ -161,5 +161,38 @@ def _install_stable_locator():
         _impl(caching)._locator_classes.insert(0, StableLocator)
 
 
+def _warm_marker():
+    """The file that says this cache holds kernels compiled for the current sources (None
+    without a cache)."""
+    if CACHE_DIR is None:
+        return None
+    return Path(CACHE_DIR) / "facefmu" / f"compiled-{kernel_sources_stamp()[:16]}"
+
+
+def kernels_warm():
+    """Whether a process with these kernel sources has run a step with this cache (its
+    kernels were then compiled and filed here); False without a cache."""
+    marker = _warm_marker()
+    return marker is not None and marker.is_file()
+
+
+def mark_kernels_warm():
+    """Note in the cache that these kernel sources have been compiled (after a step)."""
+    marker = _warm_marker()
+    if marker is not None and not marker.is_file():
+        try:
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.write_text("")
+        except OSError:
+            pass
+
+
+def compile_notice():
+    """What a user waits for when kernels_warm() is False: a sentence for logs."""
+    where = f"cached in {CACHE_DIR}" if CACHE_DIR is not None else "not cached"
+    return ("first run of these solver kernels here: numba compiles them before the first "
+            f"step (about a minute on 2 cores; {where} for later runs)")
+
+
 CACHE_DIR = solver_cache_dir()
 _install_stable_locator()
