@@ -219,12 +219,16 @@ class Transient:
         u_g = u_n if self.method == "backward_euler" else u_pred
         return Stage(c, u_d, u_m, u_g), (a0, a1, a2), p, factor
 
-    def _substep(self, sysm, u_n, v_n, h, targets, opts, prev=None):
+    def _substep(self, sysm, u_n, v_n, h, targets, opts, prev=None, last=None):
+        """Newton for the substep h from (u_n, v_n): prev, BDF2's history (None: backward
+        Euler); last, the previous accepted substep (u, v, h) for the predictor (None at a
+        backward Euler caller step's start). (u, v, error estimate, NewtonReport); u, v and
+        the estimate None where Newton failed."""
         stage, coef, p, factor = self._stage(u_n, v_n, h, prev)
         for term in self.step_terms:
             term.prepare(stage)
         lin = self.model.linear_solver
-        u0 = self._predict(u_n, v_n, h, prev)
+        u0 = self._predict(u_n, v_n, h, last)
         key = (float(f"{stage.c:.9e}"), self.damping.generation if self.damping else 0)
         u, _, rep = newton(sysm, u0, targets, lin, opts, key=key)
         if u is None and u0 is not u_n:
@@ -284,9 +288,10 @@ class Transient:
         touch = self._touching_at(sysm, u)                 # at u_n, from u_n alone
         stats = StepStats()
         t, run = t0, 0
-        prev = None
+        prev = None                     # BDF2's history: (u, v, h) one substep back
         if self.method == "bdf2" and self.history is not None:
             prev = (self.history[0].ravel(), self.history[1].ravel(), self.history[2])
+        last = prev                     # the predictor's: this caller step's, or BDF2's
         model.linear_solver.invalidate()
         h_prop = self.fixed_step or min(self.h, self.max_substep)
         h_last = None
@@ -298,7 +303,7 @@ class Transient:
             lam = 1.0 if self.hold == "step" else (t_new - t0) / span
             sysm.lam, sysm.t = lam, t_new
             targets = model.path_targets(pres, p_start, p_target, lam)
-            u_new, v_new, est, rep = self._substep(sysm, u, v, h, targets, opts, prev)
+            u_new, v_new, est, rep = self._substep(sysm, u, v, h, targets, opts, prev, last)
             stats.newton_iterations += rep.iterations
             stats.factorizations += rep.factorizations
             if u_new is None:
@@ -325,8 +330,9 @@ class Transient:
                 continue
             if self.damping is not None:
                 self.dissipated += h * float(v_new.ravel() @ self.damping.force(v_new))
+            last = (u, v, h)
             if self.method == "bdf2":
-                prev = (u, v, h)
+                prev = last
             h_last = h
             u, v, t, touch = u_new, v_new, t_new, touch_new
             sysm.commit(u)
