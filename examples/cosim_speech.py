@@ -2,7 +2,7 @@
 speech lip targets through fmpy; exit 1 if a target is missed.
 
     python examples/cosim_speech.py [--step 0.005] [--out out/cosim] [--targets FILE]
-                                    [--scene default] [--level coarse] [--fidelity ""]
+                                    [--scene default] [--fidelity fast] [--level coarse]
 
 The controller's ten activations and jaw opening drive the face; the face's lip aperture,
 protrusion and width feed back to the controller. A target is met when, at the end of its window, the
@@ -10,9 +10,11 @@ aperture and protrusion errors are each within 0.3 mm, and the width error withi
 where the width is targeted. Prints the tracking table, the wall time and the real-time
 factor, and writes a CSV and a PNG of targets, outputs and activations.
 
+The face runs at the `fast` fidelity preset (solver/app/fidelity.py, docs/presets.md), on
+which the controller's map was identified (examples/motor_control/identify.py).
 --fidelity realtime runs the face's reduced-order model (the one that ships with the
 project for the default scene), then the same controller with the full-order model of the
-scene (fidelity "", level coarse: the main job's), and prints the largest difference
+mesh it was trained on (fidelity "", level coarse), and prints the largest difference
 between the two runs' outputs; --level applies to fidelity "" only (a fidelity sets the
 mesh).
 """
@@ -212,7 +214,8 @@ def main(argv=None):
                                       "in examples/motor_control/inverse_model.json)")
     ap.add_argument("--scene", default="default", help="FaceFMU's scene parameter")
     ap.add_argument("--level", default="coarse", help="FaceFMU's level parameter")
-    ap.add_argument("--fidelity", default="", help="FaceFMU's fidelity parameter")
+    ap.add_argument("--fidelity", default="fast", help="FaceFMU's fidelity parameter "
+                    "(\"\": the scene's own settings at --level)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

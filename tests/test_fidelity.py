@@ -85,13 +85,14 @@ def test_unknown_fidelity_is_refused_naming_it_and_the_allowed():
 
 def test_simulation_applies_the_preset_under_its_overrides():
     sim = Simulation(Scene(duration=0.01), fidelity="balanced", newton_rtol=1e-7)
-    assert sim.scene.level == "medium" and sim.scene.substep_tol == PRESETS["balanced"][
+    assert sim.scene.level == "paper" and sim.scene.substep_tol == PRESETS["balanced"][
         "substep_tol"]
+    assert sim.scene.integrator == "bdf2" and sim.integrator.method == "bdf2"
     assert sim.scene.newton_rtol == 1e-7                          # the override wins
     assert sim.face.model.newton_options.rtol == 1e-7
     assert sim.face.model.newton_options.utol == PRESETS["balanced"]["newton_utol"] == 1e-2
-    assert sim.scene.rows == 2 and sim.anatomy.half
-    assert sim.anatomy.mesh.n_bricks == 2 * 1449                 # medium half face, 2 rows
+    assert sim.scene.rows == 1 and sim.anatomy.half
+    assert sim.anatomy.mesh.n_bricks == 3144                     # paper half face, 1 row
 
 
 def test_a_preset_leaves_an_ansys_face_its_own_mesh():
@@ -140,7 +141,7 @@ def test_cli_run_fidelity_applies_the_preset_and_level_wins(tmp_path, monkeypatc
                      "--quiet"]) == 0
     assert cli.main(["run", str(scene), "--fidelity", "balanced", "--level", "coarse",
                      "--out", str(tmp_path), "--quiet"]) == 0
-    assert [s.level for s in built] == ["medium", "coarse"]
+    assert [s.level for s in built] == [PRESETS["balanced"]["level"], "coarse"]
     assert all(s.substep_tol == PRESETS["balanced"]["substep_tol"] for s in built)
     assert (tmp_path / "tiny.csv").is_file()
     with pytest.raises(SystemExit) as info:
@@ -169,18 +170,18 @@ def test_fmu_declares_a_fidelity_string_parameter_defaulting_to_balanced():
 
 
 def test_fmu_fidelity_preset_sets_level_and_tolerances_and_warns_for_ignored_parameters():
-    fmu = _slave(fidelity="balanced", level="paper")
+    fmu = _slave(fidelity="balanced", level="medium")
     fmu.exit_initialization_mode()
-    assert fmu.sim.scene.level == "medium"
+    assert fmu.sim.scene.level == "paper"
     assert fmu.sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
-    assert any("level = 'paper' not used" in m.msg and "balanced" in m.msg
+    assert any("level = 'medium' not used" in m.msg and "balanced" in m.msg
                for m in fmu.log_queue)
     plain = _slave(fidelity="", level="medium", tolerance=2e-3)  # "": the parameters
     plain.exit_initialization_mode()
     assert (plain.sim.scene.level, plain.sim.scene.substep_tol) == ("medium", 2e-3)
     default = _slave()                                        # the FMU's default: balanced
     default.exit_initialization_mode()
-    assert default.sim.scene.level == "medium"
+    assert default.sim.scene.level == "paper"
     assert default.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
 
 
@@ -190,11 +191,11 @@ def test_fmu_keeps_a_scene_files_own_values_unless_the_parameter_is_set(tmp_path
     own = _slave(scene=str(scene))
     own.exit_initialization_mode()
     assert own.fidelity == "fast"
-    assert own.sim.scene.max_substep == PRESETS["fast"]["max_substep"]
-    assert PRESETS["fast"]["max_substep"] != PRESETS["balanced"]["max_substep"]
+    assert own.sim.scene.substep_tol == PRESETS["fast"]["substep_tol"]
+    assert PRESETS["fast"]["substep_tol"] != PRESETS["balanced"]["substep_tol"]
     chosen = _slave(scene=str(scene), fidelity="balanced")
     chosen.exit_initialization_mode()
-    assert chosen.sim.scene.max_substep == PRESETS["balanced"]["max_substep"]
+    assert chosen.sim.scene.substep_tol == PRESETS["balanced"]["substep_tol"]
     paper = tmp_path / "paper.toml"
     paper.write_text('[anatomy]\nlevel = "paper"\n[solver]\nsubstep_tol = 0.02\n'
                      '[muscles]\ndriven = ["OOP"]\n')
@@ -352,7 +353,7 @@ def test_replot_marks_the_front_fits_the_rate_and_names_the_presets(tmp_path):
              row("coarse 2 rows", "coarse", 4.0, 1.0, 0.16),
              row("medium 2 rows", "medium", 2.0, 4.0, 0.04),
              row("paper 2 rows", "paper", 1.0, 16.0, 0.01),
-             row("like balanced", "medium", 2.0, 5.0, 0.035, **balanced),
+             row("like balanced", PRESETS["balanced"]["level"], 2.0, 5.0, 0.035, **balanced),
              row("coarse loose", "coarse", 4.0, 2.0, 0.5, rows=1, substep_tol=1e-2)]
     import csv
     (tmp_path / "old").mkdir()

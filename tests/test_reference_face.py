@@ -211,7 +211,7 @@ def test_element_with_missing_node_names_file_and_line(copy):
 
 
 def test_a_generic_scene_at_a_preset_runs_on_the_reference_face(face):
-    """A scene whose preset sets the generic mesh's rows (balanced: 2) can be moved to the
+    """A scene whose preset sets the generic mesh's rows (balanced: 1) can be moved to the
     ANSYS face by an override: its own mesh, the preset's tolerances (benchmarks/fast_path.py
     case a); rows given with it are still refused."""
     from solver.core.errors import ParameterError

@@ -50,7 +50,7 @@ DATA = HERE / "inverse_model.json"
 CHECK = 0.05        # mm: the largest change of a stored response that --check accepts
 STEP = 0.01
 # The face the map is identified on: the FMU's parameters (the main job's face).
-FACE = {"scene": "default", "level": "coarse", "fidelity": ""}
+FACE = {"scene": "default", "fidelity": "fast"}
 
 JAW_RAMP = 0.05     # s: a sample's jaw reaches its opening over this time
 # phoneme: (synergy intent (open, round, spread, close), jaw opening deg, duration s,

@@ -44,7 +44,7 @@ HALVING_RELATIVE of the largest lip-output excursion from the start of the case 
 substep controller bounds each substep's local error, so the global error grows with
 the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
 HALVING_TOLERANCE is set for the default substep tolerance (HALVING_AT, 1e-3 mm); a
-scene with a looser one (the balanced and fast presets: 5e-2 mm) is held to
+scene with a looser one (the presets: 1e-2 to 0.5 mm) is held to
 HALVING_TOLERANCE sqrt(tol / HALVING_AT), a scaling taken from smooth motion: the
 controller keeps the local error ~ c h^2 at tol, so its substeps are h ~ sqrt(tol / c),
 and backward Euler's global error, first order in h, grows as sqrt(tol). It is a
