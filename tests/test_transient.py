@@ -271,3 +271,29 @@ def test_bdf2_lip_outputs_converge_at_second_order_and_backward_euler_at_first()
         slopes[method] = np.polyfit(np.log(hs), np.log(errs), 1)[0]
     assert slopes["bdf2"] >= 1.8, slopes
     assert slopes["backward_euler"] < 1.5, slopes
+
+
+def test_a_predictor_on_the_prescribed_path_starts_newton_on_the_targets(monkeypatch):
+    """A bar's end pushed along a steady ramp: from the second step on the predictor
+    carries the prescribed DOFs onto their targets' path, so Newton starts on the targets
+    (no prescribed jump left); where the ramp turns back, the predicted free DOFs do not
+    fit the targets, and Newton starts at the prediction, the jump its first iteration's."""
+    import solver.core.transient as transient
+    starts = []
+    real = transient.newton
+
+    def recording(sysm, u0, targets, *args, **kw):
+        starts.append(float(np.abs(u0[sysm.prescribed] - targets).max()))
+        return real(sysm, u0, targets, *args, **kw)
+
+    monkeypatch.setattr(transient, "newton", recording)
+    mesh, model, tip = _bar()
+    tr = Transient(model, fixed_step=2e-3, method="bdf2", predictor="quadratic")
+    path = [0.02, 0.04, 0.06, 0.08, 0.06, 0.04]          # mm along x: out, then back
+    for k, x in enumerate(path):
+        model.prescribe(tip, (x, 0.0, 0.0), components=(0,))
+        assert tr.advance((k + 1) * 2e-3).converged
+    assert starts[0] > 0.0                             # from rest: no velocity to follow
+    assert max(starts[2:4]) == 0.0                     # on the ramp: on the targets
+    assert starts[4] > 0.0                             # the turn: the jump is Newton's
+    assert model.u[tip, 0] == pytest.approx(0.04, abs=1e-12)
