@@ -144,9 +144,8 @@ def _run_arguments(parser):
 
 
 def _run(args):
-    from solver.core._cache import compile_notice, kernels_warm
-    if not kernels_warm():
-        print(f"facefmu run: {compile_notice()}", file=sys.stderr)
+    from solver.app.warm import warm_kernels
+    warm_kernels(log=lambda line: print(f"facefmu run: {line}", file=sys.stderr))
     if args.fidelity:
         from solver.app.fidelity import apply_fidelity
         from solver.app.simulation import resolve_scene

@@ -17,6 +17,37 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = Path(__file__).parent / "fmu_scripts"
 
 
+WARM_FROM = 50      # a session of more tests than this compiles the kernels first
+
+
+def _warm(config):
+    from solver.app.warm import warm_kernels
+    capture = config.pluginmanager.getplugin("capturemanager")
+
+    def log(line):
+        with capture.global_and_fixture_disabled():
+            print(f"conftest: {line}", file=sys.stderr, flush=True)
+    warm_kernels(log=log)
+
+
+def pytest_sessionstart(session):
+    """On a cold kernel cache, a session on xdist workers (the suite's default) compiles
+    the solver's kernels on all cores first (solver/app/warm.py), in the controller before
+    the workers start, instead of each worker compiling them one after another."""
+    config = session.config
+    if not hasattr(config, "workerinput") and getattr(config.option, "numprocesses", None):
+        _warm(config)
+
+
+def pytest_collection_finish(session):
+    """The same for a long session without workers."""
+    config = session.config
+    if not hasattr(config, "workerinput") and not getattr(config.option, "numprocesses",
+                                                          None) \
+            and len(session.items) > WARM_FROM:
+        _warm(config)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

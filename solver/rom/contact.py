@@ -46,7 +46,8 @@ tests/test_rom_online.py checks the adapters against the terms' assemble().
 import numpy as np
 
 from solver.core.assembly import block_dofs
-from solver.core.kernels.contact import rigid_contact, surface_contact, surface_normals_part
+from solver.core.kernels.contact import (NO_PAIR_FREE, rigid_contact, surface_contact,
+                                         surface_normals_part)
 from solver.core.terms.base import State
 from solver.face.terms.contact import pair_maps
 from solver.rom.contact_kernels import (centroids_radii, fill_positions, mirror_normals,
@@ -186,8 +187,8 @@ class _Lip:
                 "gap": np.zeros(len(p["slaves"])), "force": np.zeros(len(p["slaves"])),
                 # the term's kernel arguments after `kept` (its candidate-boundary flags
                 # and fade length), as its assemble() passes them
-                "extra": ((p["pair_free"], float(term.fade)) if "pair_free" in p else
-                          ((None, float(term.fade)) if hasattr(term, "fade") else ()))}
+                "extra": (p["pair_free"] if "pair_free" in p else NO_PAIR_FREE,
+                          float(getattr(term, "fade", 1.0)))}
 
     def nodes(self):
         # pair nodes and every node of the master surfaces (their edge and vertex

@@ -234,10 +234,13 @@ def signed_gaps(xs, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex, gap
 
 
 @njit(cache=True)
-def distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke):
+def distance_derivatives(x, xm, region, w, need_k, fe, ke):
     """F = |d|^2 / 2 of the pair (slave x (3,), master triangle xm (3, 3)) in a region with
     weights w (3,); fe (3 nloc,), ke (3 nloc, 3 nloc) get its gradient and Hessian over the
-    slave (nloc = 1, rigid master) or the slave and the triangle (nloc = 4). Returns F."""
+    slave (nloc = 1, rigid master) or the slave and the triangle (nloc = 4). Returns F.
+    nloc is read off fe's length, not passed: a constant argument would make numba compile
+    one version of this function (and of its callers) per value."""
+    nloc = fe.shape[0] // 3
     d = x - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
     nw = np.array([1.0, -w[0], -w[1], -w[2]])
     for a in range(nloc):
@@ -300,7 +303,7 @@ def penalty_law(p, k, smooth):
 
 
 @njit(cache=True)
-def pair_penalty(x, xm, region, w, dist, inside, m, k, smooth, nloc, need_k, fe, ke):
+def pair_penalty(x, xm, region, w, dist, inside, m, k, smooth, need_k, fe, ke):
     """Penalty energy of a pair at distance dist, inside (penetrating) or not, m (3,) the
     outward (pseudo-)normal (see distance_derivatives, penalty_law): fills fe, ke; returns
     (psi, the normal force psi' (N)). With u = +-d / |d| the direction of growing
@@ -308,7 +311,8 @@ def pair_penalty(x, xm, region, w, dist, inside, m, k, smooth, nloc, need_k, fe,
     the bracket is O(|d|) (the master's rotation; 0 on a rigid face); on an edge or a vertex
     it is not, and there it is taken over max(|d|, smooth): the tangent is exact but for
     the curvature of the distance around an edge or vertex closer than smooth."""
-    distance_derivatives(x, xm, region, w, nloc, need_k, fe, ke)
+    distance_derivatives(x, xm, region, w, need_k, fe, ke)
+    nloc = fe.shape[0] // 3
     sgn = 1.0 if inside else -1.0
     psi, dpsi, ddpsi = penalty_law(sgn * dist, k, smooth)
     if dist > 1e-12:
@@ -648,7 +652,9 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
             psi, depth_i = boundary_penalty(d, mr, k[i], smooth, fade, need_k, g, H)
             if psi <= 0.0:
                 continue
-            distance_derivatives(xs[i], xm, region, w, 1, True, d, proj)   # proj = dd/dx
+            # proj = dd/dx; fade > 0 holds here: a flag typed like need_k (a literal True
+            # would compile another version of distance_derivatives)
+            distance_derivatives(xs[i], xm, region, w, fade > 0.0, d, proj)
             fe[i] = proj @ g
             if need_k:
                 ke[i] = proj @ H @ proj
@@ -660,7 +666,7 @@ def rigid_contact(xs, k, xv, tris, ptr, cand, fn, en, vn, free_edge, free_vertex
             gap[i] = dist
             continue
         gap[i] = -dist if inside else dist
-        psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, inside, m, k[i], smooth, 1,
+        psi, force[i] = pair_penalty(xs[i], xm, region, w, dist, inside, m, k[i], smooth,
                                      need_k, fe[i], ke[i])
         energy += psi
     return energy
@@ -720,10 +726,13 @@ def _activate(i, p, depth, need_k, fe, kept, gap, force, active):
     gap[i], force[i], active[i] = -depth, np.sqrt(f @ f), p
 
 
+NO_PAIR_FREE = np.zeros((0, 3), dtype=np.bool_)     # surface_contact without pair flags
+
+
 @njit(cache=True)
 def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, free_vertex,
-                    depth, smooth, need_k, fe, ke, gap, force, active, kept, pair_free=None,
-                    fade=1.0):
+                    depth, smooth, need_k, fe, ke, gap, force, active, kept, pair_free,
+                    fade):
     """Slave nodes slaves (s,) with stiffness k (s,) on deformable triangles tris (t, 3),
     current node positions x (n, 3); the candidate pairs of slave i are
     ptr[i]:ptr[i + 1], with triangles pair_tri (p,). Keeps fe (p, 12), ke (p, 12, 12) zero
@@ -731,10 +740,12 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
     kept (s,) (the pair whose ke is nonzero or -1) are read and updated. Fills gap (s,),
     force (s,). Active: g <= 0 and |g| <= depth. Beyond a free edge or vertex of the
     surface, or of the slave's candidates (pair_free (p, 3): edge j of the pair's triangle
-    borders no other candidate of its slave), the penalty fades over fade (mm;
+    borders no other candidate of its slave; NO_PAIR_FREE, (0, 3): no such flags), the
+    penalty fades over fade (mm;
     boundary_penalty with the triangle's face normal, its exact gradient and Hessian over
     the slave and the master: faded_pair). Returns the energy."""
     energy = 0.0
+    flags = pair_free.shape[0] > 0
     w, wt, xm = np.empty(3), np.empty(3), np.empty((3, 3))
     g, H, d = np.empty(3), np.empty((3, 3)), np.empty(3)
     kmax = 0
@@ -757,7 +768,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
             gap[i] = dist
             continue
         p = ptr[i] + j
-        if region >= VERTEX and pair_free is not None and dist > 1e-12:
+        if region >= VERTEX and flags and dist > 1e-12:
             # a vertex: free when any of the slave's candidate edges at it is
             v = tris[pair_tri[p], region - VERTEX]
             K, nf = vertex_fan(v, x, tris, cand, pair_free, ptr[i], fn, ehat, nrm, efree)
@@ -778,11 +789,12 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
                 energy += psi
                 continue
             free = False
-        elif pair_free is not None and region != FACE:
+        elif flags and region != FACE:
             free = free or _pair_free(pair_free, p, region)
         if free:                       # the faded penalty on the triangle's plane
             d[:] = xs - (w[0] * xm[0] + w[1] * xm[1] + w[2] * xm[2])
-            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, False,
+            # (its H is not used here; need_k rather than False keeps one compiled version)
+            psi, depth_i = boundary_penalty(d, fn[pair_tri[p]], k[i], smooth, fade, need_k,
                                             g, H)
             if psi <= 0.0 or depth_i > depth:
                 gap[i] = dist
@@ -798,7 +810,7 @@ def surface_contact(x, slaves, k, tris, ptr, pair_tri, fn, en, vn, free_edge, fr
         gap[i], active[i] = (-dist if inside else dist), p
         if need_k:
             kept[i] = p
-        psi, force[i] = pair_penalty(xs, xm, region, w, dist, inside, m, k[i], smooth, 4,
+        psi, force[i] = pair_penalty(xs, xm, region, w, dist, inside, m, k[i], smooth,
                                      need_k, fe[p], ke[p])
         energy += psi
     return energy

@@ -20,8 +20,10 @@ from solver.core.kernels.contact import _pair_free, locate
 
 
 @njit(cache=True)
-def _gradient(x, xm, w, dist, sd, m, nloc, v):
-    """Fills v (3 nloc,) with grad p; returns p."""
+def _gradient(x, xm, w, dist, sd, m, v):
+    """Fills v (3 nloc,) with grad p (nloc = 1: the slave; 4: the slave and the
+    triangle's nodes); returns p."""
+    nloc = v.shape[0] // 3
     inside = sd <= 0.0
     if dist > 1e-12:
         sgn = 1.0 if inside else -1.0
@@ -48,7 +50,7 @@ def rigid_linear_gaps(xs, xv, tris, ptr, cand, fn, en, vn, free_edge, free_verte
                                               en, vn, free_edge, free_vertex, w, wt, xm)
         if j < 0 or free or dist > depth:
             continue
-        p[i] = _gradient(xs[i], xm, w, dist, sd, m, 1, v[i])
+        p[i] = _gradient(xs[i], xm, w, dist, sd, m, v[i])
 
 
 @njit(cache=True)
@@ -69,4 +71,4 @@ def surface_linear_gaps(x, slaves, tris, ptr, pair_tri, fn, en, vn, free_edge, f
         if free or _pair_free(pair_free, ptr[i] + j, region):
             continue
         pair[i] = ptr[i] + j
-        p[i] = _gradient(xs, xm, w, dist, sd, m, 4, v[i])
+        p[i] = _gradient(xs, xm, w, dist, sd, m, v[i])

@@ -157,9 +157,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from solver.core.errors import ParameterError
-from solver.core.kernels.contact import (extend_points, min_facing, nearest, pair_distances,
-                                         rest_offsets, rigid_contact, signed_gaps,
-                                         surface_contact, surface_normals,
+from solver.core.kernels.contact import (NO_PAIR_FREE, extend_points, min_facing, nearest,
+                                         pair_distances, rest_offsets, rigid_contact,
+                                         signed_gaps, surface_contact, surface_normals,
                                          surface_normals_part)
 from solver.core.kernels.contact_linear import rigid_linear_gaps, surface_linear_gaps
 from solver.core.terms.base import Term, pack_parts, unpack_parts
@@ -899,7 +899,7 @@ class LipContact(_Report, Term):
                         *self.normals[m].args(), np.inf, 0.0, False,
                         np.zeros((len(pair_tri), 12)), np.zeros((len(pair_tri), 12, 12)),
                         gap, np.zeros(ns), -np.ones(ns, dtype=np.int64),
-                        -np.ones(ns, dtype=np.int64))
+                        -np.ones(ns, dtype=np.int64), NO_PAIR_FREE, 1.0)
         return gap
 
     def _pairs(self, x, slaves, s, m, radius=None, facing_only=True):
