@@ -225,7 +225,7 @@ def main(argv=None):
     face_fmu, control_fmu = build_fmus(out)
     print(f"built {face_fmu.name} and {control_fmu.name} in {time.perf_counter() - t0:.1f} s")
     # a fresh machine compiles the solver's kernels first, on all cores (solver/app/warm.py)
-    subprocess.run([sys.executable, "-m", "solver.app.warm", "--quiet"], check=True)
+    subprocess.run([sys.executable, "-m", "solver.app.warm", "--quiet"], cwd=ROOT)
     face = {"scene": args.scene, "fidelity": args.fidelity}
     if not args.fidelity:
         face["level"] = args.level

@@ -107,3 +107,19 @@ def test_two_processes_leave_the_kernels_in_the_cache(tmp_path):
         print(json.dumps({{"compiled": compiled, "hits": hits}}))
     """, cache=tmp_path / "cache")
     assert after["compiled"] == [] and after["hits"] == 2
+
+
+def test_a_stale_manifest_is_reported_and_not_fatal(tmp_path):
+    stale = {"kernels": [{"module": "solver.core.kernels.scatter", "name": "no_such_kernel",
+                          "args": ["float64"], "seconds": 1.0}]}
+    (tmp_path / "m.json").write_text(json.dumps(stale))
+    res = _run(f"""
+        import json
+        from solver.app.warm import warm_kernels
+        lines = []
+        m = json.load(open({str(tmp_path / "m.json")!r}))
+        res = warm_kernels(jobs=1, manifest=m, log=lines.append)
+        print(json.dumps(dict(res, lines=lines)))
+    """, cache=tmp_path / "cache")
+    assert "no_such_kernel" in res["error"]
+    assert "compile at their first calls" in res["lines"][-1]

@@ -117,7 +117,9 @@ def warm_kernels(jobs=None, log=None, manifest=None):
     """Compile the manifest's kernels into the kernel cache in `jobs` processes at once
     (default: the CPUs this process may use), unless solver.core._cache.kernels_warm()
     says this cache holds them already. log: a callable for one line of progress.
-    Returns {"warm": already warm, "jobs": processes used, "seconds": wall time}."""
+    Returns {"warm": already warm, "jobs": processes used, "seconds": wall time}, and
+    "error" where a group failed (a stale manifest, a dead process): the kernels then
+    compile at their first calls, as without this call."""
     from solver.core.numba_config import configure_numba
     configure_numba()                   # before numba's import: the kernels' flags
     from solver.core._cache import CACHE_DIR, kernels_warm, mark_kernels_warm
@@ -132,11 +134,18 @@ def warm_kernels(jobs=None, log=None, manifest=None):
         log(f"compiling the solver's numba kernels into {CACHE_DIR} in {len(parts)} "
             f"processes (first run of these kernels here; later runs load them)")
     t0 = time.perf_counter()
-    if len(parts) == 1:
-        _compile_group(parts[0])
-    else:
-        with ProcessPoolExecutor(len(parts), mp_context=get_context("spawn")) as pool:
-            list(pool.map(_compile_group, parts, [str(CACHE_DIR)] * len(parts)))
+    try:
+        if len(parts) == 1:
+            _compile_group(parts[0])
+        else:
+            with ProcessPoolExecutor(len(parts), mp_context=get_context("spawn")) as pool:
+                list(pool.map(_compile_group, parts, [str(CACHE_DIR)] * len(parts)))
+    except Exception as exc:            # an optimization: the kernels compile when called
+        if log:
+            log(f"could not compile the kernels ahead ({type(exc).__name__}: {exc}); they "
+                "compile at their first calls")
+        return {"warm": False, "jobs": len(parts), "seconds": time.perf_counter() - t0,
+                "error": f"{type(exc).__name__}: {exc}"}
     seconds = time.perf_counter() - t0
     if manifest is None:
         mark_kernels_warm()
