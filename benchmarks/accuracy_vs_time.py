@@ -31,6 +31,8 @@ Runs (each an independent task of solver.sweep; the default sweep):
   level: the medium level's show those effects, and the sweep keeps within 30 minutes.)
 * the fidelity presets of solver.app.fidelity (a run is added for a preset no row matches;
   none for a preset finer than the reference);
+* the default scene's own settings (solver/app/scenes/default.toml: its level and
+  [solver] section; label "default scene"): the point of a run without a preset;
 * the `balanced` preset at substep error tolerances 1e-2, 2e-2 and 3e-2 mm, and `fast`
   at 1e-2 mm, the rest of each preset as it is (labels "balanced at substep_tol 0.01"
   and so on): what the presets' 5e-2 mm costs;
@@ -174,6 +176,7 @@ def sweep_specs(quick=False, reference_face=None):
     runs += preset_specs(runs, ref)
     if not quick:
         runs += tolerance_specs(ref)
+        runs += [scene_spec(ref)]
         runs.append(realtime_spec(ref))
     if not quick and reference_face is not None and (reference_face / "newface.node").is_file():
         face, rref = str(reference_face.resolve()), "reference face tight"
@@ -219,6 +222,15 @@ def realtime_model_missing(specs, duration):
         print("realtime: no trained model of the gesture (train it with `python "
               "benchmarks/rom_train.py --scene open_round`); its run is left out")
         return [s for s in specs if s.get("fidelity") != "realtime"]
+
+
+def scene_spec(ref, scene="default"):
+    """The built-in scene's own settings (its level, rows and [solver] section) on the
+    gesture: where a run without a fidelity preset falls against the presets."""
+    from solver.app.simulation import resolve_scene
+
+    own = resolve_scene(scene)
+    return spec(f"{scene} scene", ref, **{k: getattr(own, k) for k in KNOBS})
 
 
 def tolerance_specs(ref):

@@ -335,6 +335,21 @@ def test_every_preset_is_a_run_of_the_default_sweep_and_tolerance_runs_tighten_o
         assert r["reference"] == "fine"
 
 
+def test_the_default_sweep_runs_the_default_scenes_own_settings(tmp_path):
+    """--list: the run `default scene` has the default scene's level and solver settings
+    (solver/app/scenes/default.toml), against the fine face."""
+    from solver.app.simulation import resolve_scene
+    run = _accuracy(tmp_path, "--list", "--out", "out")
+    assert run.returncode == 0, run.stderr
+    row = next(r for r in _csv(tmp_path / "out" / "runs.csv") if r["label"] == "default scene")
+    own = resolve_scene("default")
+    assert row["reference"] == "fine" and row["level"] == own.level
+    for key in ("integrator", "substep_tol", "max_substep", "newton_rtol", "newton_utol"):
+        value = getattr(own, key)
+        assert (row[key] == value) if isinstance(value, str) else \
+            float(row[key]) == pytest.approx(value), key
+
+
 def test_replot_marks_the_front_fits_the_rate_and_names_the_presets(tmp_path):
     """--replot of a table: the Pareto front of the generic-face runs (a run slower and
     less accurate than another is off it), the rate p of err ~ h^p over the level study

@@ -132,7 +132,8 @@ def warm_kernels(jobs=None, log=None, manifest=None):
     parts = groups(data["kernels"], jobs)
     if log:
         log(f"compiling the solver's numba kernels into {CACHE_DIR} in {len(parts)} "
-            f"processes (first run of these kernels here; later runs load them)")
+            f"process{'es' if len(parts) > 1 else ''} (first run of these kernels here; "
+            "later runs load them)")
     t0 = time.perf_counter()
     try:
         if len(parts) == 1:
