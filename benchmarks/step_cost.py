@@ -1,7 +1,7 @@
 """Where a 5 ms step's time goes: the default scene at a fidelity, jaw still and jaw moving.
 
     python benchmarks/step_cost.py [--fidelity balanced] [--duration 0.1] [--step 0.005]
-                                   [--opening 8] [--integrator backward_euler]
+                                   [--opening 8] [--integrator bdf2|backward_euler]
                                    [--md docs/generated/step_cost.md]
 
 Drives the default scene (the paper's model: ten muscles, stiffening, inertia, damping,
@@ -61,7 +61,8 @@ def run(fidelity, duration, step, jaw, integrator, profile, newton=None):
     options to set (solver.core.newton.NewtonOptions fields)."""
     from solver.app.simulation import Simulation, resolve_scene
     gesture = resolve_scene("speech")
-    sim = Simulation("default", fidelity=fidelity, integrator=integrator)
+    sim = Simulation("default", fidelity=fidelity,
+                     **({"integrator": integrator} if integrator else {}))
     for key, value in (newton or {}).items():
         setattr(sim.face.model.newton_options, key, value)
     lin = sim.face.model.linear_solver
@@ -134,7 +135,8 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=0.1)
     ap.add_argument("--step", type=float, default=0.005)
     ap.add_argument("--opening", type=float, default=8.0)
-    ap.add_argument("--integrator", default="backward_euler")
+    ap.add_argument("--integrator", default=None,
+                    help="backward_euler or bdf2 (default: the fidelity's own)")
     ap.add_argument("--newton", action="append", default=[],
                     help="KEY=VALUE: a Newton option (NewtonOptions) for every run")
     ap.add_argument("--md", default="")
@@ -177,11 +179,15 @@ def main(argv=None):
     table = "\n".join(lines)
     print(table)
     if args.md:
+        from solver.app.fidelity import apply_fidelity
+        from solver.app.simulation import resolve_scene
+        integrator = args.integrator or \
+            apply_fidelity(resolve_scene("default"), args.fidelity).integrator
         from solver.app.provenance import command, stamp
         Path(args.md).write_text(
             "# Where a step's time goes\n\n"
             f"Written by `{command('benchmarks/step_cost.py', argv)}` {stamp()}: the default "
-            f"scene at `{args.fidelity}` ({args.integrator}"
+            f"scene at `{args.fidelity}` ({integrator}"
             + "".join(f", {k} = {v}" for k, v in newton.items()) + "), driven by the `speech` scene's "
             f"OOP + RIS gesture for {args.duration:g} s at {args.step * 1e3:g} ms steps, in "
             "process. Each row is the functions' own time under cProfile "
