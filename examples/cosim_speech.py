@@ -21,18 +21,18 @@ mesh).
 
 import argparse
 import csv
-import json
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from facefmu.cosim import Master, read_system
+from facefmu.speech import (OUTPUTS, TARGETS, duration, missed, records, table,  # noqa: F401
+                            tracking)
+from facefmu.speech import load_targets as _load_targets
+
 ROOT = Path(__file__).resolve().parents[1]
 CONTROL = Path(__file__).resolve().parent / "motor_control"
-TOLERANCE = {"lip_aperture": 0.3, "lip_protrusion": 0.3, "lip_width": 0.5}     # mm
-OUTPUTS = ("lip_aperture", "lip_protrusion", "lip_width")
-TARGETS = {"lip_aperture": "target_aperture", "lip_protrusion": "target_protrusion",
-           "lip_width": "target_width"}
 MUSCLES = ("LLSAN", "LAO", "ZYG", "RIS", "BUC", "DAO", "DLI", "MENT", "OOP", "OOM")
 
 
@@ -54,93 +54,33 @@ def build_fmus(dest):
     return dest / "FaceFMU.fmu", control
 
 
-def instantiate(path, name, start_values=None):
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-    md = read_model_description(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu.enterInitializationMode()
-    for key, value in (start_values or {}).items():
-        if isinstance(value, str):
-            fmu.setString([vr[key]], [value])
-        elif isinstance(value, bool):
-            fmu.setBoolean([vr[key]], [value])
-        else:
-            fmu.setReal([vr[key]], [value])
-    fmu.exitInitializationMode()
-    return fmu, vr
+def load_targets(path=None):
+    """The target list of a JSON file (default: the identified ones)."""
+    return _load_targets(path or CONTROL / "inverse_model.json")
+
+
+def speech_system(face_fmu, control_fmu, step):
+    """The two-FMU system of examples/motor_control/OspSystemStructure.xml with these FMUs
+    and communication step."""
+    system = read_system(CONTROL / "OspSystemStructure.xml",
+                         fmus={"face": face_fmu, "control": control_fmu})
+    system.step = step
+    return system
+
+
+def _echo(simulator, status, message):
+    """The FMUs' log as it comes: FaceFMU's compile notice, warnings and worse."""
+    if status != "ok" or "compil" in message:
+        print(f"[{simulator} {status}] {message}", flush=True)
 
 
 def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, control_params=None):
-    """Step both FMUs together, as a fixed-step master does (libcosim, SSP): each step both
-    FMUs take the other's outputs at t as their inputs, then step to t + step. Returns rows:
-    the target active over [t, t + step], the activations applied over it, and the face's
-    outputs at t + step."""
-    face, fv = instantiate(face_fmu, "face", face_params)
-    ctrl, cv = instantiate(control_fmu, "control", control_params)
-    rows, t = [], 0.0
-    jaw = "jaw_opening" in cv and "jaw_opening" in fv          # both FMUs have the jaw
-    for _ in range(int(round(stop / step))):
-        y = face.getReal([fv[o] for o in OUTPUTS])
-        acts = ctrl.getReal([cv[m] for m in MUSCLES])
-        opening = ctrl.getReal([cv["jaw_opening"]])[0] if jaw else 0.0
-        targets = ctrl.getReal([cv[TARGETS[o]] for o in OUTPUTS])
-        phoneme = ctrl.getString([cv["phoneme"]])[0]
-        ctrl.setReal([cv[o] for o in OUTPUTS], y)
-        face.setReal([fv[m] for m in MUSCLES], acts)
-        if jaw:
-            face.setReal([fv["jaw_opening"]], [opening])
-        ctrl.doStep(t, step)
-        face.doStep(t, step)
-        t += step
-        y = face.getReal([fv[o] for o in OUTPUTS])
-        incisors = face.getReal([fv["incisor_opening"]])[0] if jaw else 0.0
-        rows.append({"time": t, "phoneme": phoneme.decode() if isinstance(phoneme, bytes)
-                     else phoneme, **{TARGETS[o]: v for o, v in zip(OUTPUTS, targets)},
-                     **dict(zip(OUTPUTS, y)), **dict(zip(MUSCLES, acts)),
-                     "jaw_opening": opening, "incisor_opening": incisors})
-    for f in (face, ctrl):
-        f.terminate()
-        f.freeInstance()
-    return rows
-
-
-def load_targets(path=None):
-    """The target list of a JSON file (a list, or inverse_model.json's "targets")."""
-    data = json.loads(Path(path or CONTROL / "inverse_model.json").read_text())
-    return data["targets"] if isinstance(data, dict) else data
-
-
-def tracking(rows, targets):
-    """Per target, at the end of its window: [(target dict, {output: (target, achieved,
-    error, tolerance, met)})] for the targeted outputs."""
-    out, end = [], 0.0
-    for tg in targets:
-        end += tg["duration"]
-        row = min(rows, key=lambda r: abs(r["time"] - end))
-        checks = {}
-        for o in OUTPUTS:
-            if o in tg["targeted"]:
-                err = row[o] - tg[o]
-                checks[o] = (tg[o], row[o], err, TOLERANCE[o], abs(err) <= TOLERANCE[o])
-        out.append((tg, row["time"], checks))
-    return out
-
-
-def table(results):
-    lines = [f"{'target':8s}{'window end':12s}{'jaw deg':>8s}  {'output':16s}{'target':>8s}"
-             f"{'achieved':>10s}{'error':>8s}{'tol':>6s}  result"]
-    for tg, t, checks in results:
-        for k, (o, (target, got, err, tol, met)) in enumerate(checks.items()):
-            ph, end, jaw = (f"/{tg['phoneme']}/", f"{t:.3f} s",
-                            f"{tg.get('jaw_opening', 0.0):.1f}") if k == 0 else ("", "", "")
-            lines.append(f"{ph:8s}{end:12s}{jaw:>8s}  {o:16s}{target:8.2f}{got:10.2f}"
-                         f"{err:+8.2f}{tol:6.1f}  {'met' if met else 'MISSED'}")
-    return "\n".join(lines)
+    """The speech co-simulation (facefmu.cosim's master, records of facefmu.speech): a
+    facefmu.cosim.Result whose rows hold, per step, the target active over [t, t + step],
+    the activations applied over it, and the face's outputs at t + step."""
+    system = speech_system(face_fmu, control_fmu, step)
+    with Master(system, records(system), echo=_echo) as master:
+        return master.run(stop, {"face": face_params or {}, "control": control_params or {}})
 
 
 def report(rows, targets, wall, csv_path):
@@ -148,14 +88,14 @@ def report(rows, targets, wall, csv_path):
     the number of targets missed."""
     results = tracking(rows, targets)
     print(table(results))
-    stop = sum(tg["duration"] for tg in targets)
+    stop = duration(targets)
     print(f"co-simulation: {wall:.1f} s of wall time for {stop:.2f} s of speech "
           f"(real-time factor {wall / stop:.1f})")
     with open(csv_path, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    return sum(not all(c[4] for c in checks.values()) for _, _, checks in results)
+    return missed(results)
 
 
 def compare_full(rows, face_fmu, control_fmu, stop, step, face, control):
@@ -163,9 +103,11 @@ def compare_full(rows, face_fmu, control_fmu, stop, step, face, control):
     one was trained on (fidelity "", level coarse) and print the largest difference of
     each output."""
     face.update(fidelity="", level="coarse")
-    t0 = time.perf_counter()
-    full = cosimulate(face_fmu, control_fmu, stop, step, face, control)
-    wall = time.perf_counter() - t0
+    result = cosimulate(face_fmu, control_fmu, stop, step, face, control)
+    if not result.ok:
+        print(f"full-order run failed: {result.reason}")
+        return None
+    full, wall = result.rows, result.wall
     diff = {o: max(abs(a[o] - b[o]) for a, b in zip(rows, full)) for o in OUTPUTS}
     print(f"full-order run of the same controller (level 'coarse'): {wall:.1f} s of "
           f"wall time (real-time factor {wall / stop:.1f}); largest difference of the "
@@ -233,15 +175,18 @@ def main(argv=None):
     print(f"co-simulating {stop:.2f} s of speech at {args.step * 1e3:g} ms steps: FaceFMU "
           f"scene {args.scene!r}, " + (f"fidelity {args.fidelity!r}" if args.fidelity else
                                         f"level {args.level!r}, the scene's fidelity"))
-    t0 = time.perf_counter()
-    rows = cosimulate(face_fmu, control_fmu, stop, args.step, face, control)
-    missed = report(rows, targets, time.perf_counter() - t0, out / "cosim.csv")
+    result = cosimulate(face_fmu, control_fmu, stop, args.step, face, control)
+    if not result.ok:
+        print(f"FAILED: the co-simulation stopped: {result.reason}")
+        return 1
+    rows = result.rows
+    n_missed = report(rows, targets, result.wall, out / "cosim.csv")
     plot(rows, targets, out / "cosim.png")
     print(f"wrote {out / 'cosim.csv'} and {out / 'cosim.png'}")
     if args.fidelity == "realtime":
         compare_full(rows, face_fmu, control_fmu, stop, args.step, dict(face), control)
-    if missed:
-        print(f"FAILED: {missed} of {len(targets)} targets missed")
+    if n_missed:
+        print(f"FAILED: {n_missed} of {len(targets)} targets missed")
         return 1
     print(f"all {len(targets)} targets met")
     return 0

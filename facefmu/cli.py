@@ -5,6 +5,8 @@
                          [--export FILE.vtu|FILE.xdmf] [--png FILE.png]
     facefmu run SCENE [--out DIR] [--fidelity fast|balanced|accurate|realtime]
                       [--anatomy SPEC] [--level L] [--full] [--vtu]
+    facefmu cosim SYSTEM.xml [--targets FILE ...] [--stop S] [--set SIM.VAR=VALUE]
+                             [--grid SIM.VAR=V1,V2] [--workers N] [--scheduler ADDRESS]
 
 Errors in the user's input (missing folder, broken file, bad option, unwritable output)
 and a missing optional dependency (solver.app.extras: the message names the extra) print one
@@ -155,12 +157,29 @@ def _run(args):
     return run_scene.run(args)
 
 
+# ----------------------------------------------------------------------------- cosim
+
+def _cosim_arguments(parser):
+    from . import cosim_cli
+    cosim_cli.add_arguments(parser)
+
+
+def _cosim(args):
+    from . import cosim_cli
+    try:
+        return cosim_cli.run(args)
+    except ValueError as exc:                   # a wrong description, file or option
+        raise UserError(str(exc)) from None
+
+
 COMMANDS = {
     "version": ("print the version", _version_arguments, _version),
     "anatomy": ("summarise a face anatomy; export it or draw it", _anatomy_arguments,
                 _anatomy),
     "run": ("run a scene standalone: CSV, PNG and optional VTU frames",
             _run_arguments, _run),
+    "cosim": ("co-simulate a system description: one utterance, or a batch on dask",
+              _cosim_arguments, _cosim),
 }
 
 

@@ -156,3 +156,26 @@ def test_the_main_job_meets_every_target(tmp_path):
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     n = len(json.loads((CONTROL / "inverse_model.json").read_text())["targets"])
     assert f"all {n} targets met" in run.stdout and "MISSED" not in run.stdout
+
+
+def test_a_plain_libcosim_script_exits_without_an_fmu_error(two_targets, tmp_path):
+    """libcosim terminates the FMUs from its own teardown while Python shuts down (imports
+    fail then): a script that builds the speech system's execution, steps it and ends
+    normally exits 0 with no FMU error on its output."""
+    pytest.importorskip("libcosimpy")
+    run, _, out = two_targets
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    for name in ("FaceFMU.fmu", "LipMotorControl.fmu"):
+        (tmp_path / name).write_bytes((out / name).read_bytes())
+    (tmp_path / "OspSystemStructure.xml").write_text(
+        (CONTROL / "OspSystemStructure.xml").read_text())
+    (tmp_path / "plain.py").write_text(
+        "from libcosimpy.CosimExecution import CosimExecution\n"
+        "execution = CosimExecution.from_osp_config_file('OspSystemStructure.xml')\n"
+        "assert execution.simulate_until(int(0.02e9))\n"
+        "print('simulated')\n")
+    run = subprocess.run([sys.executable, "plain.py"], capture_output=True, text=True,
+                         timeout=600, cwd=tmp_path)
+    text = run.stdout + run.stderr
+    assert run.returncode == 0 and "simulated" in run.stdout, text[-3000:]
+    assert "[error]" not in text and "Fatal" not in text, text[-3000:]

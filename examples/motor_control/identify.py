@@ -7,8 +7,10 @@ targets that the face can reach.
 
 Each sample holds one set of synergy weights w (lipmc_inverse.SYNERGIES) and one jaw
 opening j from rest for `hold` seconds through FaceFMU (fmpy, 10 ms communication steps,
-the jaw ramped to j over its first JAW_RAMP seconds, the FMU rolled back to its rest state
-between samples) and records the lip aperture, protrusion and width at the end. The
+the jaw ramped to j over its first JAW_RAMP seconds) and records the lip aperture,
+protrusion and width at the end. The samples run as a batch of open-loop utterances on
+dask workers (facefmu.batch: each worker's FMU is restored to its rest state between
+samples). The
 samples are x = (w, j / JAW_SCALE) in [0, 1]^5: its 32 corners, its centre, and a seeded
 Latin hypercube for the rest. A polynomial in x (lipmc_inverse.features) is fitted by
 least squares; its leave-one-out errors are printed and stored.
@@ -34,7 +36,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -86,44 +87,37 @@ def build_face(dest):
     return Path(dest) / "FaceFMU.fmu"
 
 
-def respond(fmu_path, samples, hold):
-    """The lip outputs every STEP of each hold (shape (len(samples), hold / STEP, 3)) of
-    the inputs samples (n, 5) (design), through the FMU; runs in a worker process (one
-    FMU instance, rolled back to rest between samples)."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-    md = read_model_description(str(fmu_path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="identify")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    for key, value in FACE.items():
-        fmu.setString([vr[key]], [value])
-    fmu.exitInitializationMode()
-    rest = fmu.getFMUstate()
+def sample_utterances(samples, hold):
+    """One facefmu.batch.Utterance per sample x (design): its activations held, its jaw
+    opening ramped over JAW_RAMP, for `hold` seconds at STEP communication steps."""
+    from facefmu.batch import Utterance
+    steps = int(round(hold / STEP))
     out = []
-    for x in samples:
-        fmu.setFMUstate(rest)
-        acts = activations(x[:len(NAMES)])
-        fmu.setReal([vr[m] for m in acts], list(acts.values()))
-        t, trajectory = 0.0, []
-        for _ in range(int(round(hold / STEP))):
-            jaw = x[len(NAMES)] * JAW_SCALE * min(1.0, (t + STEP) / JAW_RAMP)
-            fmu.setReal([vr["jaw_opening"]], [jaw])
-            try:
-                fmu.doStep(t, STEP)
-            except Exception as exc:   # fmpy's exception does not pickle out of a worker
-                raise RuntimeError(f"sample {np.round(x, 3).tolist()} (activations, jaw): "
-                                   f"the step from t = {t:.3f} s failed: {exc}") from None
-            t += STEP
-            trajectory.append(fmu.getReal([vr[o] for o in OUTPUTS]))
-        out.append(trajectory)
-    fmu.freeFMUstate(rest)
-    fmu.terminate()
-    fmu.freeInstance()
-    return np.array(out)
+    for i, x in enumerate(samples):
+        inputs = {f"face.{m}": a for m, a in activations(x[:len(NAMES)]).items()}
+        inputs["face.jaw_opening"] = [x[len(NAMES)] * JAW_SCALE
+                                      * min(1.0, (k + 1) * STEP / JAW_RAMP)
+                                      for k in range(steps)]
+        out.append(Utterance(f"sample{i}", hold, inputs=inputs))
+    return out
+
+
+def respond(fmu_path, samples, hold, jobs=2):
+    """The lip outputs every STEP of each hold (shape (len(samples), hold / STEP, 3)) of
+    the inputs samples (n, 5) (design): a batch of open-loop utterances of FaceFMU alone
+    on `jobs` dask workers (facefmu.batch; each worker's FMU instance is restored to its
+    rest state between samples). SystemExit naming the first sample that failed."""
+    from facefmu.batch import Batch
+    from facefmu.cosim import System
+    system = System({"face": fmu_path}, initial={"face": dict(FACE)}, step=STEP)
+    with Batch(system, [f"face.{o}" for o in OUTPUTS], n_workers=jobs) as batch:
+        result = batch.run(sample_utterances(samples, hold))
+    for x, s in zip(samples, result.summary):
+        if not s["ok"]:
+            raise SystemExit(f"sample {np.round(x, 3).tolist()} (activations, jaw) "
+                             f"failed: {s['reason']}")
+    return np.array([[[r[o] for o in OUTPUTS] for r in result.trajectories[s["utterance"]]]
+                     for s in result.summary])
 
 
 def fit_output(Phi, y, floored):
@@ -198,7 +192,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=96)
     ap.add_argument("--hold", type=float, default=0.3, help="s held per sample")
-    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--jobs", type=int, default=2, help="dask workers (facefmu.batch)")
     ap.add_argument("--out", default=str(DATA))
     ap.add_argument("--refit", action="store_true", help="fit the samples stored in --out "
                     "again (new targets or model) without running the face")
@@ -219,11 +213,7 @@ def main(argv=None):
         command = "python examples/motor_control/identify.py " + " ".join(
             argv if argv is not None else sys.argv[1:])
         with tempfile.TemporaryDirectory() as tmp:
-            fmu = build_face(tmp)
-            chunks = np.array_split(W, args.jobs)
-            with ProcessPoolExecutor(args.jobs) as pool:
-                T = np.vstack(list(pool.map(respond, [fmu] * args.jobs, chunks,
-                                            [args.hold] * args.jobs)))
+            T = respond(build_face(tmp), W, args.hold, args.jobs)
         Y = T[:, -1]
     wall = time.perf_counter() - t0
     coef, loo = fit(W, Y)

@@ -24,7 +24,6 @@ waits for its threads far longer than it computes.
 import contextlib
 import ctypes
 import os
-import sys
 
 import numpy as np
 import scipy.sparse as sp
@@ -180,28 +179,36 @@ class _Handle:
         self.ia = self.ja = None    # its 1-based int32 index arrays
         self.a = None               # the factorized values, in dtype
 
-    def call(self, phase, n, b):
+    def _args(self, phase, n, b, x, err):
+        """The ctypes arguments of one PARDISO call on b (in) and x (out)."""
         p = self.p
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        return (p.pt.ctypes.data_as(ctypes.POINTER(p._pt_type[0])),
+                ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(1)),
+                ctypes.byref(ctypes.c_int32(-2)), ctypes.byref(ctypes.c_int32(phase)),
+                ctypes.byref(ctypes.c_int32(n)), self.a.ctypes.data_as(ctypes.c_void_p),
+                self.ia.ctypes.data_as(i32), self.ja.ctypes.data_as(i32),
+                p.perm.ctypes.data_as(i32),
+                ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
+                p.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
+                b.ctypes.data_as(ctypes.c_void_p), x.ctypes.data_as(ctypes.c_void_p),
+                ctypes.byref(err))
+
+    def call(self, phase, n, b):
         b = np.asfortranarray(b, dtype=self.dtype)
         x = np.zeros_like(b)
         err = ctypes.c_int32(0)
-        i32 = ctypes.POINTER(ctypes.c_int32)
-        p._mkl_pardiso(p.pt.ctypes.data_as(ctypes.POINTER(p._pt_type[0])),
-                       ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(1)),
-                       ctypes.byref(ctypes.c_int32(-2)), ctypes.byref(ctypes.c_int32(phase)),
-                       ctypes.byref(ctypes.c_int32(n)), self.a.ctypes.data_as(ctypes.c_void_p),
-                       self.ia.ctypes.data_as(i32), self.ja.ctypes.data_as(i32),
-                       p.perm.ctypes.data_as(i32),
-                       ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
-                       p.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
-                       b.ctypes.data_as(ctypes.c_void_p), x.ctypes.data_as(ctypes.c_void_p),
-                       ctypes.byref(err))
+        self.p._mkl_pardiso(*self._args(phase, n, b, x, err))
         if err.value != 0:
             raise RuntimeError(f"PARDISO error {err.value} in phase {phase}")
         return np.ascontiguousarray(x, dtype=np.float64)
 
     def factorize(self, U, key):
-        """Analyse U's pattern where it is new (phase 11), then factorize (phase 22)."""
+        """Analyse U's pattern where it is new (phase 11), then factorize (phase 22).
+        The arguments of the call that frees it (phase 0) are made now, with the arrays
+        they point to kept: release() then calls MKL through ctypes alone, as it must
+        when the interpreter shuts down (numpy's .ctypes imports a module on first use,
+        and imports fail then)."""
         n = U.shape[0]
         self.a = U.data.astype(self.dtype)
         if key != self.pattern:
@@ -210,6 +217,9 @@ class _Handle:
             self.call(11, n, np.zeros(n))
             self.pattern = key
         self.call(22, n, np.zeros(n))
+        b, x = np.zeros(n, dtype=self.dtype), np.zeros(n, dtype=self.dtype)
+        self._free = (self._args(0, n, b, x, ctypes.c_int32(0)), self.a, self.ia, self.ja,
+                      b, x)
 
     @property
     def perturbed(self):
@@ -217,8 +227,11 @@ class _Handle:
         return int(self.p.iparm[13])
 
     def release(self):
+        """Free the factorization (phase 0) with the arguments made at factorize: no
+        scipy, no numpy, no import, so that it also works while the interpreter shuts
+        down (a master that terminates the FMU from its own teardown: libcosim's)."""
         if self.pattern is not None:
-            self.p.free_memory(everything=False)
+            self.p._mkl_pardiso(*self._free[0])
             self.pattern = None
 
 
@@ -349,7 +362,17 @@ def _pypardiso():
         if libs:
             os.environ["PYPARDISO_MKL_RT"] = str(libs[0])
     import pypardiso
+    global _MKL_FREE_BUFFERS
+    path = os.environ.get("PYPARDISO_MKL_RT")
+    if path and _MKL_FREE_BUFFERS is None:     # bound now: callable at shutdown, no import
+        try:
+            _MKL_FREE_BUFFERS = ctypes.CDLL(path).mkl_free_buffers
+        except (OSError, AttributeError):
+            pass
     return pypardiso
+
+
+_MKL_FREE_BUFFERS = None
 
 
 def free_mkl_buffers():
@@ -359,13 +382,8 @@ def free_mkl_buffers():
     exit in 6 of 8 runs of three instances each without it (heap corruption reported by
     glibc), in none of 24 with it at the instances' terminate; with twelve instances, in 3
     of 24 (facefmu/facefmu_slave.py)."""
-    path = os.environ.get("PYPARDISO_MKL_RT")
-    if not path or "pypardiso" not in sys.modules:
-        return
-    try:
-        ctypes.CDLL(path).mkl_free_buffers()
-    except (OSError, AttributeError):
-        pass
+    if _MKL_FREE_BUFFERS is not None:
+        _MKL_FREE_BUFFERS()
 
 
 def available():
