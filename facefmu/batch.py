@@ -198,20 +198,10 @@ class Batch:
     one-thread worker processes (the default), or the running cluster at scheduler."""
 
     def __init__(self, system, records=None, scheduler=None, n_workers=2):
-        try:
-            from dask.distributed import Client, LocalCluster
-        except ImportError:
-            raise ImportError("batches need dask.distributed: pip install "
-                              "'facefmu[sweep]'") from None
+        from solver.sweep import DaskClient     # client side only: workers import no solver
         self.system, self.records = system, records
-        self.cluster = None
-        if scheduler is None:
-            self.cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1,
-                                        processes=True, dashboard_address=None,
-                                        env=dict(THREAD_ENV))
-            self.client = Client(self.cluster)
-        else:
-            self.client = Client(scheduler)
+        self._dask = DaskClient(scheduler, n_workers, THREAD_ENV)
+        self.client = self._dask.client
         self._warm = False
 
     def __enter__(self):
@@ -225,13 +215,11 @@ class Batch:
             self.client.run(_close_masters)     # terminate the FMUs before the workers go
         except Exception:
             pass
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        self._dask.close()
 
     @property
     def workers(self):
-        return list(self.client.scheduler_info()["workers"])
+        return self._dask.workers
 
     def warmup(self, log=print):
         """Compile the kernels on one worker into the shared cache, then let the others

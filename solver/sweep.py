@@ -115,24 +115,23 @@ def run_task(task, scene="default", numba_threads=1):
     return out
 
 
-class Sweep:
-    """A dask client for sweeps: a LocalCluster of n_workers one-thread worker processes
-    (the default), or the running cluster at `scheduler` (an address: tcp://host:8786).
-    numba_threads: numba threads per task."""
+class DaskClient:
+    """A dask client on a LocalCluster of n_workers one-thread worker processes (the
+    default; env: environment variables of the workers), or on the running cluster at
+    `scheduler` (an address: tcp://host:8786). A context manager that closes both."""
 
-    def __init__(self, scheduler=None, n_workers=2, numba_threads=1):
+    def __init__(self, scheduler=None, n_workers=2, env=None):
         need("dask.distributed", "sweep", "solver.sweep")
         from dask.distributed import Client, LocalCluster
 
-        self.numba_threads = numba_threads
         self.cluster = None
         if scheduler is None:
             self.cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1,
-                                        processes=True, dashboard_address=None)
+                                        processes=True, dashboard_address=None,
+                                        env=dict(env or {}))
             self.client = Client(self.cluster)
         else:
             self.client = Client(scheduler)
-        self._warm = False
 
     def __enter__(self):
         return self
@@ -148,6 +147,15 @@ class Sweep:
     @property
     def workers(self):
         return list(self.client.scheduler_info()["workers"])
+
+
+class Sweep(DaskClient):
+    """A DaskClient for sweeps of scenes; numba_threads: numba threads per task."""
+
+    def __init__(self, scheduler=None, n_workers=2, numba_threads=1):
+        super().__init__(scheduler, n_workers)
+        self.numba_threads = numba_threads
+        self._warm = False
 
     def _submit(self, task, scene, **kw):
         return self.client.submit(run_task, task, scene, self.numba_threads, pure=False, **kw)
