@@ -116,8 +116,17 @@ def main(argv=None):
         lines += [f"| {n} | {k} | {o} | {e:+.2f} | {w:.3f} | {dj:+.1f} | {da:+.1f} |"
                   for n, k, o, e, w, dj, da in miss]
         by_out = {o: sum(m[2] == o for m in miss) for o in speech.OUTPUTS}
+        first = {}
+        for m in miss:                          # one entry per missed target
+            first.setdefault((m[0], m[1]), m)
+        big = sum(abs(m[5]) >= 2.5 or abs(m[6]) >= 4.0 for m in first.values())
+        short = sum(m[4] < 0.15 for m in first.values())
         lines += ["", "Misses by output: " + ", ".join(f"{o} {c}" for o, c in by_out.items())
-                  + "."]
+                  + f". Of the {len(first)} missed targets, {big} follow a jaw change of at "
+                  "least 2.5 deg or an aperture change of at least 4 mm into their window, "
+                  f"{short} have windows shorter than 150 ms, and "
+                  f"{sum(m[1] == 0 for m in first.values())} are the first target, from "
+                  "rest."]
     text = "\n".join(lines)
     print(text)
     if args.md:
