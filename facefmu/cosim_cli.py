@@ -15,7 +15,6 @@ utterance or one line per utterance; exit status 0 when every utterance ran and 
 targets, 1 otherwise.
 """
 
-import sys
 from pathlib import Path
 
 
@@ -102,9 +101,3 @@ def run(args):
           f"{len(result.summary) - bad} of {len(result.summary)} utterances ran")
     return 1 if bad else 0
 
-
-if __name__ == "__main__":
-    import argparse
-    p = argparse.ArgumentParser()
-    add_arguments(p)
-    sys.exit(run(p.parse_args()))
