@@ -2,7 +2,7 @@
 
     python benchmarks/step_cost.py [--fidelity balanced] [--duration 0.1] [--step 0.005]
                                    [--opening 8] [--integrator bdf2|backward_euler]
-                                   [--md docs/generated/step_cost.md]
+                                   [--before COMMIT] [--md docs/generated/step_cost.md]
 
 Drives the default scene (the paper's model: ten muscles, stiffening, inertia, damping,
 lip and teeth contact) with the `speech` scene's OOP + RIS gesture at --step communication
@@ -21,12 +21,15 @@ own time (cProfile's tottime, no overlap between rows) is put in one row:
 
 The counts per step (substeps, Newton iterations, factorizations, solves, residual and
 tangent assemblies) are the runs' own. Profiling adds its overhead to the Python rows;
-the wall time without the profiler is printed beside it. --md writes the table with the
-command and commit.
+the wall time without the profiler is printed beside it. --before COMMIT measures that
+commit's code too (a temporary git worktree; benchmarks/revision.py), then this
+checkout's, each in a fresh process, and puts the columns side by side. --md writes the
+table with the command and commit.
 """
 
 import argparse
 import cProfile
+import json
 import math
 import pstats
 import sys
@@ -129,6 +132,48 @@ def breakdown(stats, counts):
     return out
 
 
+def measure(args, newton):
+    """{column label: {"plain": s, "profiled": s, "counts": {...}, "rows": {row: s}}}: the
+    jaw still and moving, each run twice without the profiler (the faster kept) and once
+    with it, after a warm-up."""
+    from solver.core.numba_config import configure_numba
+    configure_numba()
+
+    def cycle(t):
+        return 0.5 * args.opening * (1.0 - math.cos(2.0 * math.pi * t / args.duration))
+    runs = {"jaw still": None, f"jaw 0 -> {args.opening:g} -> 0 deg": cycle}
+    run(args.fidelity, 2 * args.step, args.step, None, args.integrator, False, newton)
+    cols = {}
+    for label, jaw in runs.items():
+        plain = min(run(args.fidelity, args.duration, args.step, jaw, args.integrator,
+                        False, newton)[0] for _ in range(2))
+        wall, counts, stats = run(args.fidelity, args.duration, args.step, jaw,
+                                  args.integrator, True, newton)
+        cols[label] = dict(plain=plain, profiled=wall, counts=counts,
+                           rows=breakdown(stats, counts))
+        print(f"{label}: {plain:.2f} s without the profiler, {wall:.2f} s with it", flush=True)
+    return cols
+
+
+def table(cols, step):
+    """The markdown table of columns {label: measure()'s entry}."""
+    lines = [f"| per {step * 1e3:g} ms step | " + " | ".join(cols) + " |",
+             "|---|" + "---|" * len(cols)]
+
+    def line(name, f):
+        lines.append(f"| {name} | " + " | ".join(f(c, c["counts"]["steps"])
+                                                 for c in cols.values()) + " |")
+    line("wall time, no profiler (ms)", lambda c, n: f"{1e3 * c['plain'] / n:.0f}")
+    line("wall time, profiled (ms)", lambda c, n: f"{1e3 * c['profiled'] / n:.0f}")
+    for r in ROWS:
+        line(f"- {r} (ms)", lambda c, n, r=r: f"{1e3 * c['rows'][r] / n:.1f} "
+             f"({100 * c['rows'][r] / c['profiled']:.0f} %)")
+    for key, label in (("substeps", "substeps"), ("iterations", "Newton iterations"),
+                       ("factorizations", "factorizations"), ("solves", "solves")):
+        line(label, lambda c, n, key=key: f"{c['counts'][key] / n:.2f}")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fidelity", default="balanced")
@@ -139,6 +184,10 @@ def main(argv=None):
                     help="backward_euler or bdf2 (default: the fidelity's own)")
     ap.add_argument("--newton", action="append", default=[],
                     help="KEY=VALUE: a Newton option (NewtonOptions) for every run")
+    ap.add_argument("--before", default="",
+                    help="a commit: measure its code too, in the same call, and put its "
+                         "columns beside this checkout's")
+    ap.add_argument("--json", default="", help=argparse.SUPPRESS)
     ap.add_argument("--md", default="")
     args = ap.parse_args(argv)
     newton = {}
@@ -147,37 +196,29 @@ def main(argv=None):
         newton[key] = {"true": True, "false": False, "none": None}.get(value.lower(), value)
         if isinstance(newton[key], str):
             newton[key] = float(value)
-    from solver.core.numba_config import configure_numba
-    configure_numba()
-
-    def cycle(t):
-        return 0.5 * args.opening * (1.0 - math.cos(2.0 * math.pi * t / args.duration))
-    runs = {"jaw still": None, f"jaw 0 -> {args.opening:g} -> 0 deg": cycle}
-    run(args.fidelity, 2 * args.step, args.step, None, args.integrator, False, newton)
-    cols = {}
-    for label, jaw in runs.items():
-        plain, _, _ = run(args.fidelity, args.duration, args.step, jaw, args.integrator,
-                          False, newton)
-        wall, counts, stats = run(args.fidelity, args.duration, args.step, jaw,
-                                  args.integrator, True, newton)
-        cols[label] = (plain, wall, counts, breakdown(stats, counts))
-        print(f"{label}: {plain:.2f} s without the profiler, {wall:.2f} s with it", flush=True)
-    n = {k: c[2]["steps"] for k, c in cols.items()}
-    head = "| per 5 ms step | " + " | ".join(cols) + " |"
-    lines = [head.replace("5 ms", f"{args.step * 1e3:g} ms"), "|---|" + "---|" * len(cols)]
-
-    def line(name, f):
-        lines.append(f"| {name} | " + " | ".join(f(k, c) for k, c in cols.items()) + " |")
-    line("wall time, no profiler (ms)", lambda k, c: f"{1e3 * c[0] / n[k]:.0f}")
-    line("wall time, profiled (ms)", lambda k, c: f"{1e3 * c[1] / n[k]:.0f}")
-    for r in ROWS:
-        line(f"- {r} (ms)", lambda k, c, r=r: f"{1e3 * c[3][r] / n[k]:.1f} "
-             f"({100 * c[3][r] / c[1]:.0f} %)")
-    for key, label in (("substeps", "substeps"), ("iterations", "Newton iterations"),
-                       ("factorizations", "factorizations"), ("solves", "solves")):
-        line(label, lambda k, c, key=key: f"{c[2][key] / n[k]:.2f}")
-    table = "\n".join(lines)
-    print(table)
+    if args.json:                       # a run of revision.run_json: the columns only
+        Path(args.json).write_text(json.dumps(measure(args, newton)))
+        return
+    if args.before:
+        from revision import checkout, describe, run_json
+        sub = ["--fidelity", args.fidelity, "--duration", str(args.duration), "--step",
+               str(args.step), "--opening", str(args.opening)]
+        sub += ["--integrator", args.integrator] if args.integrator else []
+        sub += [a for item in args.newton for a in ("--newton", item)]
+        rev = describe(args.before)
+        print(f"before: {rev}", flush=True)
+        with checkout(args.before) as code:
+            before = run_json("benchmarks/step_cost.py", sub, code)
+        print("after: this checkout", flush=True)
+        after = run_json("benchmarks/step_cost.py", sub)
+        cols = {}
+        for label in after:
+            cols[f"{label}, before ({rev})"] = before[label]
+            cols[f"{label}, after"] = after[label]
+    else:
+        cols = measure(args, newton)
+    text = table(cols, args.step)
+    print(text)
     if args.md:
         from solver.app.fidelity import apply_fidelity
         from solver.app.simulation import resolve_scene
@@ -189,10 +230,14 @@ def main(argv=None):
             f"Written by `{command('benchmarks/step_cost.py', argv)}` {stamp()}: the default "
             f"scene at `{args.fidelity}` ({integrator}"
             + "".join(f", {k} = {v}" for k, v in newton.items()) + "), driven by the `speech` scene's "
-            f"OOP + RIS gesture for {args.duration:g} s at {args.step * 1e3:g} ms steps, in "
-            "process. Each row is the functions' own time under cProfile "
+            f"OOP + RIS gesture for {args.duration:g} s at {args.step * 1e3:g} ms steps"
+            + (f", measured on the code of commit {describe(args.before)} (before) and on "
+               "this checkout's (after), one after the other in fresh processes"
+               if args.before else ", in process")
+            + ". Each row is the functions' own time under cProfile "
             "(benchmarks/step_cost.py says which functions go in which row); the share is "
-            f"of the profiled time.\n\n{table}\n")
+            "of the profiled time; the wall time without the profiler is the faster of "
+            f"two runs.\n\n{text}\n")
         print(f"wrote {args.md}")
 
 

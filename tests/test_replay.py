@@ -44,3 +44,28 @@ def test_replay_applies_each_rows_inputs_over_its_step(tmp_path):
         want.append([sim.outputs()[o] for o in replay.OUTPUTS])
     assert np.array_equal(got, np.array(want))
     assert cost["substeps"] >= 2 and cost["iterations"] > 0 and cost["dof"] == sim.u.size
+
+
+def test_before_runs_a_commits_own_code(tmp_path):
+    """benchmarks/revision.py: a script run on a commit's worktree imports the solver from
+    there (not from this checkout), the worktree goes away after, and an unknown commit
+    is refused by name."""
+    import subprocess
+
+    import pytest
+    import revision
+    script = tmp_path / "where.py"
+    script.write_text("import json, sys, solver\n"
+                      "json.dump({'file': solver.__file__}, open(sys.argv[-1], 'w'))\n")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                          capture_output=True, text=True).stdout.strip()
+    if not head:
+        pytest.skip("not a git checkout")
+    with revision.checkout("HEAD") as code:
+        there = revision.run_json(script, [], code)["file"]
+        assert there.startswith(str(code)), there
+    assert not code.exists()
+    here = revision.run_json(script, [])["file"]
+    assert here.startswith(str(ROOT)), here
+    with pytest.raises(ValueError, match="no-such-commit"):
+        revision.describe("no-such-commit")

@@ -297,3 +297,44 @@ def test_a_predictor_on_the_prescribed_path_starts_newton_on_the_targets(monkeyp
     assert max(starts[2:4]) == 0.0                     # on the ramp: on the targets
     assert starts[4] > 0.0                             # the turn: the jump is Newton's
     assert model.u[tip, 0] == pytest.approx(0.04, abs=1e-12)
+
+
+def test_a_rest_of_step_just_above_the_proposal_is_taken_in_one_substep():
+    """The landing rule: what is left of a caller's step, up to 1.3 times the proposal
+    and max_substep, is one substep (no sliver after a 4 ms substep of a 5 ms step); not
+    right after a rejection (the retry would be stretched back to the rejected size),
+    and never past max_substep."""
+    _, model, _ = _bar()
+    tr = Transient(model, max_substep=5e-3, method="bdf2")
+    assert tr._size(4e-3, 0.0, 5e-3, None) == pytest.approx(5e-3)
+    assert tr._size(3e-3, 0.0, 5e-3, None) == pytest.approx(3e-3)       # 5/3 > 1.3
+    assert tr._size(4e-3, 0.0, 5e-3, None, stretch=False) == pytest.approx(4e-3)
+    assert tr._size(4e-3, 0.01, 0.015, None) == pytest.approx(5e-3)
+    short = Transient(model, max_substep=4e-3, method="bdf2")
+    assert short._size(4e-3, 0.0, 5e-3, None) == pytest.approx(4e-3)
+    fixed = Transient(model, fixed_step=4e-3, method="bdf2")
+    assert fixed._size(4e-3, 0.0, 5e-3, None) == pytest.approx(4e-3)
+
+
+def test_the_error_estimate_leaves_out_the_prescribed_dofs(monkeypatch):
+    """A tip pulled along a zigzag (its path turns at every caller step): the estimate
+    the controller measures is zero on the prescribed DOFs, which take their targets
+    exactly, and the steps still land on time."""
+    mesh, model, tip = _bar()
+    model.prescribe(tip, (0.0, 0.0, 0.0))
+    tr = Transient(model, tol=1e-3, max_substep=2e-3, method="bdf2")
+    pres = model.system().prescribed
+    assert len(pres) == 3 * (len(mesh.node_sets["xmin"]) + len(tip))
+    seen = []
+    real = Transient._error
+
+    def spy(est, u, atol, rtol, touch, touch_new):
+        seen.append(np.abs(est[pres]).max())
+        return real(est, u, atol, rtol, touch, touch_new)
+    monkeypatch.setattr(Transient, "_error", staticmethod(spy))
+    for k in range(6):
+        model.prescribe(tip, (0.0, 0.0, 0.3 if k % 2 == 0 else 0.0), components=(0, 1, 2))
+        assert tr.advance((k + 1) * 5e-3).converged
+    assert tr.t == pytest.approx(0.03, abs=1e-15)
+    assert seen and max(seen) == 0.0
+    assert np.abs(model.u[tip, 2]).max() == pytest.approx(0.0, abs=1e-12)

@@ -59,9 +59,12 @@ class Cables(Term):
         return [self.nodes]
 
     def active_strain(self, lam):
+        """(c,) each cable's active strain at load factor lam (its muscle's, made once
+        per muscle)."""
         a = self.activation.at(lam)
-        return np.array([self.properties.active_strain(MUSCLE_NAMES[m], a[m])
-                         for m in self.muscle])
+        per = np.array([self.properties.active_strain(name, a[m])
+                        for m, name in enumerate(MUSCLE_NAMES)])
+        return per[self.muscle]
 
     def point_positions(self, u):
         """(c, 2, 3) current cable end positions for displacements u (n, 3)."""

@@ -349,14 +349,21 @@ class _Normals:
         self.vn = np.empty((p, 3))
         self._me = np.nonzero(self.topo.mirror_edge)
         self._mv = np.flatnonzero(self.topo.mirror_vertex)
+        self._at = None             # the vertices' positions of the last whole update
 
     def update(self, x, part=None):
-        """Refresh the normals at the points x (p, 3): all of them, or the rows of a part
-        (changed() or read())."""
+        """Refresh the normals at the points x (p, 3): all of them (nothing to do where
+        the surface's vertices are where the last whole update had them), or the rows of
+        a part (changed() or read())."""
         if part is None:
+            at = x[self.verts]
+            if self._at is not None and np.array_equal(at, self._at):
+                return self
             surface_normals(x, self.tris, self.topo.nbr, self.verts, self.fn, self.en, self.vn)
             me, mv = self._me, self._mv
+            self._at = at
         else:
+            self._at = None
             surface_normals_part(x, self.tris, self.topo.nbr, *part.rows, self.fn, self.en,
                                  self.vn)
             me, mv = part.me, part.mv
@@ -600,7 +607,6 @@ class RigidContact(_Report, Term):
             self._moved = self.normals.changed(moving)
         self.normals.update(self.vertices, self._moved)
         self._tree = None                 # the candidate search's, rebuilt when needed
-        self._cached = None
 
     def _stiffnesses(self):
         return [self.k]
@@ -640,17 +646,28 @@ class RigidContact(_Report, Term):
         return [self.slaves[:, None]]
 
     def _candidates(self, x):
-        """(ptr (s + 1,), triangles) lists, rebuilt when a slave moved more than margin."""
-        if self._cached is None or \
-                np.linalg.norm(x - self._cached[0], axis=1).max(initial=0.0) > self.margin:
+        """(ptr (s + 1,), triangles) lists, rebuilt once ds + 3 dv > margin: ds the
+        slaves' and dv the surface vertices' largest motion since they were made (a
+        triangle's centroid moves by at most dv and its reach grows by at most 2 dv, so
+        every triangle within search_radius stays a candidate)."""
+        cached = self._cached
+        if cached is None or self._moved_by(x, cached) > self.margin:
             if self._tree is None:
                 corners = self.vertices[self.tris]
                 centroids = corners.mean(axis=1)
                 self._tree = cKDTree(centroids)
                 self._reach = np.linalg.norm(corners - centroids[:, None], axis=2).max()
-            self._cached = (x.copy(), *_lists(self._tree, x, self.search_radius + self._reach
-                                              + self.margin))
-        return self._cached[1], self._cached[2]
+            self._cached = (x.copy(), self.vertices,
+                            *_lists(self._tree, x, self.search_radius + self._reach
+                                    + self.margin))
+        return self._cached[2], self._cached[3]
+
+    def _moved_by(self, x, cached):
+        """ds + 3 dv (mm) since the candidate lists cached = (x, vertices, ...) were made."""
+        ds = np.linalg.norm(x - cached[0], axis=1).max(initial=0.0)
+        if cached[1] is self.vertices:
+            return ds
+        return ds + 3.0 * np.linalg.norm(self.vertices - cached[1], axis=1).max(initial=0.0)
 
     def assemble(self, state, asm, block_ids):
         if self.motion is not None:
