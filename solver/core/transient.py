@@ -56,7 +56,8 @@ left of it is at most STRETCH (1.3) times the proposal (and at most max_substep)
 substep takes it all: a step controller whose proposal hovers just below the caller's
 step would otherwise follow each substep with a sliver (5 ms steps as 4.2 + 0.8 ms), which
 costs as many Newton iterations and a factorization of its own. The stretched substep is
-accepted or rejected by the same error test. Loads (the
+accepted or rejected by the same error test, and where its Newton fails it is retried at
+the proposal (and cut back from there as any substep). Loads (the
 activations, prescribed displacements, forces) ramp linearly from their values at t0 to
 their targets at t1 (``hold="ramp"``, a first-order hold) or jump at t0 (``hold="step"``).
 A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
@@ -93,6 +94,9 @@ PREDICTORS = ("velocity", "quadratic", "none")
 # A substep that would end within this factor of its proposal from the caller step's end
 # is stretched to land there (module docstring).
 STRETCH = 1.3
+# The controller's largest growth of a substep over the last (variable-step BDF2 is
+# zero-stable for ratios below 1 + sqrt 2).
+GROWTH = 2.0
 METHODS = ("bdf2", "backward_euler")
 
 
@@ -290,10 +294,10 @@ class Transient:
         at <= 1; module docstring)."""
         k = self.order + 1
         if err == 0.0:
-            return 2.0
+            return GROWTH
         if rejected or self.method == "backward_euler":
-            return min(2.0, max(0.3, 0.9 * err ** (-1.0 / k)))
-        return min(2.0, max(0.3, 0.9 * err ** (-0.7 / k) * self.err_prev ** (0.4 / k)))
+            return min(GROWTH, max(0.3, 0.9 * err ** (-1.0 / k)))
+        return min(GROWTH, max(0.3, 0.9 * err ** (-0.7 / k) * self.err_prev ** (0.4 / k)))
 
     def advance(self, t_end):
         """Integrate from self.t to t_end (> self.t); returns StepStats. On failure the
@@ -338,6 +342,10 @@ class Transient:
             u_new, v_new, est, rep = self._substep(sysm, u, v, h, targets, opts, prev, last)
             stats.newton_iterations += rep.iterations
             stats.factorizations += rep.factorizations
+            if u_new is None and h > h_prop * (1.0 + 1e-9):
+                stats.rejected += 1     # a stretched substep: retried at the proposal
+                retry = True
+                continue
             if u_new is None:
                 stats.cutbacks += 1
                 run += 1
