@@ -25,9 +25,11 @@ def _binary(fmu):
 
 
 def test_the_fmu_carries_the_corrected_wrapper(fmu):
-    import pythonfmu
-    stock = (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64"
-             / "libpythonfmu-export.so").read_bytes()
+    # the installed distribution's file: an FMU loaded earlier in this process may have
+    # put its own copy of the pythonfmu package (no binaries) first on sys.path
+    from importlib.metadata import distribution
+    stock = Path(distribution("pythonfmu").locate_file(
+        "pythonfmu/resources/binaries/linux64/libpythonfmu-export.so")).read_bytes()
     shipped = _binary(fmu)
     assert shipped != stock
     assert shipped == wrapper.patched_wrapper().read_bytes()
