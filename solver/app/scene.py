@@ -2,93 +2,41 @@
 
 A scene names the anatomy, the driven muscles (the others are not assembled), the effects
 (each one a solver term, built only when asked for), the analysis, tolerances, the
-recorded outputs and, for standalone runs, activation schedules.
+recorded outputs and, for standalone runs, activation schedules. Its TOML sections and
+keys (one `Scene` field per key, whose defaults are the fields'; units mm, s, MPa):
 
-    [scene]
-    name = "rounding_u"
-    description = "lip rounding and protrusion for /u/"
-    analysis = "transient"          # "static" | "transient"
-    duration = 0.3                  # s (standalone runs)
-    fidelity = "balanced"           # optional: a preset of solver.app.fidelity (fast |
-                                    # balanced | accurate) for the level, half face and
-                                    # solver tolerances; keys written in this file win;
-                                    # "realtime": the reduced-order model (solver.rom,
-                                    # trained per scene: benchmarks/rom_train.py)
+    [scene]      name, description, analysis ("static" | "transient"), duration (s),
+                 fidelity: a preset of solver.app.fidelity (fast | balanced | accurate;
+                 keys written in the file win) or "realtime", the reduced model (solver.rom)
+    [anatomy]    source ("generic" or an ANSYS face folder), level (coarse | medium |
+                 paper | fine), half (x <= 0, u_x = 0 on the mid-sagittal plane),
+                 rows (brick rows per layer of the generic face, 1-4)
+    [muscles]    driven (default all ten), force_scale {muscle: scale}, calibration
+                 ("physiological" | "paper": solver.face.muscles.calibrated), and, each
+                 replacing the calibration's, sigma_max (MPa), contraction_strain (eps_c),
+                 stiffening_max (the stiffening factor at a = 1)
+    [effects]    inertia, damping (transient only), stiffening, stiffening_rule ("volume" |
+                 "intersect"), lip_contact, teeth_contact (false lets lips and teeth
+                 interpenetrate), gravity ("none" | "upright": -z | "supine": -y)
+    [gravity]    g (m/s^2)
+    [damping]    alpha (1/s), beta (s), density (kg/m^3): C = alpha M + beta K_n
+    [solver]     formulation ("mean_dilatation" | "full"), linear_solver ("auto" |
+                 "pardiso-single" | "pardiso" | "superlu"), newton_rtol, newton_utol (mm),
+                 lip_penalty (N/mm^3), integrator ("backward_euler" | "bdf2"), substep_tol
+                 (mm) and substep_rtol (a substep is kept when every local error is at most
+                 substep_tol + substep_rtol |u|), max_substep, min_substep (s), hold
+                 (activations within a step: "ramp" | "step")
+    [outputs]    record (names from OUTPUTS), interval (s, standalone runs)
+    [[schedule]] muscle = "OOP", or jaw = "opening" (deg) | "protrusion" (mm, JAW_RANGES);
+                 kind "ramp" (start, end, from, to) | "step" (time, value) | "pwl" (times,
+                 values); activations are 0 and the jaw closed where unset
 
-    [anatomy]
-    source = "generic"              # "generic" or an ANSYS face folder
-    level = "coarse"                # coarse | medium | paper | fine (generic face)
-    half = true                     # x <= 0 with u_x = 0 on the mid-sagittal plane
-    rows = 2                        # optional: brick rows per layer (generic face; 1-4;
-                                    # default the level's: 1, 2 at 'fine')
+"muscle_strains" records strain_min_M and strain_max_M (M a muscle): the most compressive
+and most tensile logarithmic principal strain over each driven muscle's region (its
+stiffening neighbourhood). A run with gravity starts from the static equilibrium under
+gravity alone; the lip outputs stay measured from the mesh as given.
 
-    [muscles]
-    driven = ["OOP", "OOM"]         # default: all ten
-    force_scale = { OOP = 1.0 }     # optional, per muscle
-    calibration = "paper"           # default "physiological": the muscle constants
-                                    # (solver.face.muscles.calibrated); the three keys
-                                    # below, where given, replace the calibration's:
-    sigma_max = 0.24                # optional, MPa: the peak muscle stress
-    contraction_strain = 1.0        # optional: the cable's slack strain at a = 1 (eps_c)
-    stiffening_max = 5.3            # optional: the stiffening factor at a = 1
-
-    [effects]
-    inertia = true                  # transient only
-    damping = true                  # transient only
-    stiffening = true
-    stiffening_rule = "volume"      # "volume" | "intersect" (the paper's whole bricks)
-    lip_contact = true              # lip on lip, frictionless (the paper's model); a scene
-    teeth_contact = true            # that sets either false lets lips and teeth interpenetrate
-    gravity = "none"                # "none" | "upright" | "supine"
-
-    [gravity]
-    g = 9.81                        # m/s^2
-
-    [damping]                       # Rayleigh C = alpha M + beta K_n (solver/core/terms/inertia.py)
-    alpha = 40.0                    # 1/s
-    beta = 0.03                     # s
-    density = 1040.0                # kg/m^3
-
-    [solver]
-    formulation = "mean_dilatation" # | "full"
-    linear_solver = "auto"          # | "pardiso-single" | "pardiso" | "superlu"
-    newton_rtol = 1e-6              # residual over the load scale
-    newton_utol = 1e-5              # mm, Newton's last update
-    lip_penalty = 1.0               # N/mm^3, the lip/lip contact's penalty (contact pressure
-                                    # per mm of penetration; solver/face/terms/contact.py)
-    integrator = "backward_euler"   # | "bdf2" (second order; solver/core/transient.py)
-    substep_tol = 1e-3              # mm, the local error's absolute tolerance (atol)
-    substep_rtol = 0.0              # its tolerance relative to each DOF's displacement: a
-                                    # substep is kept when every local error is at most
-                                    # substep_tol + substep_rtol |u|
-    max_substep = 5e-3              # s
-    min_substep = 1e-7              # s
-    hold = "ramp"                   # activations within a step: "ramp" | "step"
-
-    [outputs]
-    record = ["lip_aperture", "lip_protrusion", "lip_width"]   # see OUTPUTS
-    interval = 0.005                # s, standalone runs
-
-"muscle_strains" records strain_min_M and strain_max_M (M a muscle): the most compressive and most
-tensile logarithmic principal strain over each driven muscle's region (its stiffening
-neighbourhood).
-
-A jaw schedule (`jaw = "opening"` or `jaw = "protrusion"`) drives the jaw's pose
-(solver.face.jaw) in its own unit and range (JAW_RANGES: opening 0 to 20 deg, protrusion -1 to
-10 mm); the jaw stays closed where there is none.
-
-    [[schedule]]                    # standalone runs; activations are 0 where unset
-    muscle = "OOP"                  # or jaw = "opening" (deg) | "protrusion" (mm)
-    kind = "ramp"                   # "step" | "ramp" | "pwl"
-    start = 0.0                     # ramp: from `from` at start to `to` at end
-    end = 0.1
-    from = 0.0
-    to = 1.0
-    # step: time = 0.05, value = 1.0        pwl: times = [...], values = [...]
-
-Gravity: 'upright' pulls along -z (head upright), 'supine' along -y (lying on the back).
-A run with gravity starts from the static equilibrium under gravity alone; the lip outputs
-stay measured from the mesh as given.
+Every key annotated, in an example scene: docs/method.md, section 'Scene files'.
 """
 
 import math

@@ -1,83 +1,43 @@
 r"""Implicit time stepping: backward Euler (default) or variable-step BDF2, with
 error-controlled adaptive substeps.
 
-The face is strongly overdamped (alpha = 40 1/s and beta = 0.03 s give every mode a
-damping ratio >= 1.1) and stiff (K/mu = 500), so the integrator must be L-stable: high
-modes are damped out, never amplified, whatever the step. Both methods are; docs/method.md
-argues the choice of BDF2 among the second-order ones.
-
-Methods, for the step t_n -> t_{n+1} = t_n + h with u = u_{n+1} and the step ratio
-w = h / h_{n-1}: the velocity and acceleration of the end state are
+The face is stiff (K/mu = 500) and strongly overdamped (alpha = 40 1/s and beta = 0.03 s
+give every mode a damping ratio >= 1.1), so the integrator must be L-stable: both methods
+are. For the step t_n -> t_{n+1} = t_n + h with u = u_{n+1} and w = h / h_{n-1}:
 
     v_{n+1} = (a0 u + a1 u_n + a2 u_{n-1}) / h,   a_{n+1} = (a0 v_{n+1} + a1 v_n + a2 v_{n-1}) / h
     BDF2: a0 = (1 + 2w)/(1 + w), a1 = -(1 + w), a2 = w^2/(1 + w);   backward Euler: 1, -1, 0
 
 and M a + C v + f_int(u) = f_ext is solved by Newton (solver.core.newton). Both are the
 form v = c (u - u_d), a = c^2 (u - u_m) with c = a0 / h (Stage; solver.core.terms.inertia).
-BDF2 is second order and needs one substep of history (u_{n-1}, v_{n-1}, h_{n-1}), which
-the state carries across caller steps (``history``); its first substep, with none, is a
-backward Euler one. Variable-step BDF2 is zero-stable for w < 1 + sqrt 2: the controller
-grows a step by at most 2.
+BDF2 needs one substep of history (u_{n-1}, v_{n-1}, h_{n-1}), which the state carries
+across caller steps (``history``); its first substep, with none, is a backward Euler one.
+C = alpha M + beta K_n is built once per substep and held fixed within it: on the
+predicted end state u_n + h v_n for BDF2, on the start state for backward Euler.
 
-Local error estimate (Milne's device): the difference between the corrector u and an
-explicit predictor p of the same order, scaled by the ratio of their error constants,
+Substep control: the local error estimate (Milne's device) is the corrector minus an
+explicit predictor of the same order, scaled by the ratio of their error constants,
 
     BDF2: est = (1 + w)/(2 + 3 w) (u - p),  p = u_n + h v_n + h^2 (u_{n-1} - u_n + h_{n-1} v_n)/h_{n-1}^2
-    backward Euler: est = (u - u_n - h v_n) / 2 = h/2 (v_{n+1} - v_n)
+    backward Euler: est = (u - u_n - h v_n) / 2
 
-(the constants come from both formulas' errors on a cubic, resp. a quadratic). It is
-measured in the weighted max norm err = max_i |est_i| / (atol + rtol |u_i|) over the DOFs
-(atol in mm, rtol relative to the DOF's displacement); a substep is accepted when err <= 1.
-Max, not RMS: the lips are a small part of the face, whose bulk barely moves; an RMS
-would let their error hide behind it. The next step comes from a PI controller (Gustafsson
-1991) with k = order + 1: h_new = h 0.9 err^(-0.7/k) err_prev^(0.4/k), within [0.3, 2] h
-(backward Euler: the I controller h 0.9 err^(-1/2)); a rejected step is retried at
-h max(0.3, 0.9 err^(-1/k)).
+in the weighted max norm err = max_i |est_i| / (atol + rtol |u_i|); a substep is accepted
+when err <= 1, and a PI controller proposes the next h, growing a step by at most 2
+(variable-step BDF2 is zero-stable for w < 1 + sqrt 2). The nodes a contact pushes on and
+the prescribed DOFs are left out of the estimate.
 
-Contact onset and release: nodes in contact are left out of the estimate: those that a
-nonsmooth term (contact, ``Term.nonsmooth``) pushed on at either end of the substep. Their
-velocity jumps at an impact or a release and, while they touch, follows the penalty's stiff
-mode (a penalty stops a node within sqrt(m / k), microseconds), which no step resolves;
-the estimate there would only collapse the steps. The rest of the face, the neighbours of
-those nodes included, still sets it; leaving the contact nodes out moves the lip outputs
-of benchmarks/accuracy_vs_time.py's runs by 0.002 mm at most (docs/accuracy.md).
+A caller's step [t0, t1] is split as needed and lands exactly on t1: what is left, when at
+most STRETCH (1.3) times the proposal, is one substep (retried at the proposal where its
+Newton fails); ``even_steps`` splits it into equal substeps. Loads ramp linearly from t0
+to t1 (``hold="ramp"``) or jump at t0 (``hold="step"``). A substep whose Newton fails is
+retried at h/4; after ``max_cutbacks`` in a row the caller's step fails and the model
+goes back to its state at t0. Newton starts from the ``predictor`` ("velocity"
+u_n + h v_n, default; "quadratic"; "none" u_n), the prescribed DOFs put on their targets
+where it came within ON_PATH of them. Each caller step starts with a new factorization,
+so that a step repeated from the same state (an FMU rollback) repeats exactly.
 
-Damping matrix: C = alpha M + beta K_n is built once per substep and held fixed within it
-(solver.core.terms.inertia), on the start state for backward Euler and on the predicted
-end state u_n + h v_n for BDF2 (built on the start state it would cost BDF2 its order).
-
-Prescribed DOFs (fixed nodes, the jaw's) take their targets exactly: they are left out
-of the estimate, whose difference there would be the predictor's miss of the input's
-turn at each caller step's start (a jaw path is piecewise linear), not an error of the
-method.
-
-Substeps: a caller's step [t0, t1] is split as needed and lands exactly on t1. Where what is
-left of it is at most STRETCH (1.3) times the proposal (and at most max_substep), one
-substep takes it all: a step controller whose proposal hovers just below the caller's
-step would otherwise follow each substep with a sliver (5 ms steps as 4.2 + 0.8 ms), which
-costs as many Newton iterations and a factorization of its own. The stretched substep is
-accepted or rejected by the same error test, and where its Newton fails it is retried at
-the proposal (and cut back from there as any substep). Loads (the
-activations, prescribed displacements, forces) ramp linearly from their values at t0 to
-their targets at t1 (``hold="ramp"``, a first-order hold) or jump at t0 (``hold="step"``).
-A substep whose Newton fails is retried at h/4 (a cutback); after ``max_cutbacks`` in a row
-the caller's step fails and the model goes back to its state at t0. A substep shortened
-to land on t1 does not shrink the next proposal (were it to, 10 ms caller steps with 5 ms
-substeps would run 1.7, 3.3 and 5 ms substeps); with ``even_steps`` the span left is split
-into equal substeps of at most the proposal.
-
-Newton's start (``predictor``): "velocity" u_n + h v_n (default), "quadratic"
-u_n + h (v_n + h (v_n - v_{n-1}) / h_{n-1}), "none" u_n. Where the predictor carried the
-prescribed DOFs (a moving jaw) to their targets within ON_PATH times their predicted move,
-it puts them on the targets: Newton then starts with no prescribed jump, whose first iteration
-would take the linearized response to it with no line search (on a jaw gesture at `fast`
-a quarter fewer Newton iterations). Where the path turned (a jaw that stops opening and
-closes) the predicted free DOFs do not fit the targets, and that first iteration is what
-brings them there. Where Newton fails from a predictor it is tried once more from u_n
-before the cutback. Each caller step starts with
-a new factorization of the tangent, so that a step repeated from the same state (an FMU
-rollback) repeats exactly; Newton's key, what the tangent depends on besides u, is c to 10
-significant digits and the damping matrix's generation.
+Derivation (error estimate, controller, contact nodes, substeps, predictor, Newton's key):
+docs/method.md, section 'Transient analysis'.
 """
 
 from dataclasses import dataclass, field

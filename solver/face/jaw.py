@@ -17,34 +17,20 @@ Within a step the pose runs linearly from its last committed value to its target
 prescribed nodes, the teeth and the insertions all follow the same rigid motion at
 every substep.
 
-Axis placement. Neither face includes the condyles, so the axis is placed from the
-incisor point I by the Bonwill triangle and the Balkwill angle. The Bonwill triangle
-(W. G. A. Bonwill, 1858: the lower incisal point and the two condyles form a roughly
-equilateral triangle of side about 4 inches, 100 mm; later measurements give 100 to
-110 mm) puts the intercondylar midpoint at sqrt(100^2 - 50^2) = 86.6 mm from the incisal
-point (BONWILL_MM). The Balkwill angle (F. H. Balkwill, 1866: the angle between the
-Bonwill triangle and the occlusal plane, 20 to 25 degrees in textbooks such as Koerber,
-Zahnaerztliche Prothetik) tilts that line up from the occlusal plane: C = I + 86.6 mm
-(-cos b e_y + sin b e_z), b = BALKWILL_DEG. The occlusal plane is taken as the mesh's
-horizontal plane (its y axis forward). I lies on the mid-line where the incisal edges meet
-with the jaw closed: halfway between the lowest point of the upper teeth surface and
-the highest point of the lower one, both within MIDLINE_MM of the mid-sagittal plane
-and FRONT_MM of the surfaces' front (jaw_geometry). The two faces' teeth surfaces are
-the gums and teeth under the lips, not the crowns' edges, hence the midpoint.
+Axis (jaw_geometry). Neither face includes the condyles, so C is placed from the incisor
+point I: C = I + BONWILL_MM (-cos b e_y + sin b e_z), b = BALKWILL_DEG (the Bonwill
+triangle, 86.6 mm, and the Balkwill angle), the occlusal plane being the mesh's horizontal
+plane. I lies on the mid-line halfway between the lowest point of the upper teeth surface
+and the highest point of the lower one, both within MIDLINE_MM of the mid-sagittal plane
+and FRONT_MM of the surfaces' front.
 
-Ranges (JAW_RANGES). Opening 0 to 20 degrees: 0 is the closed jaw (teeth in occlusion);
-20 degrees turns the incisor point by 2 * 86.6 sin(10 deg) = 30 mm, beyond the 10 to 20 mm
-of incisor opening of open vowels and below the 40 to 50 mm of maximal mouth opening,
-which needs the condyles' forward translation as well (Muto and Kanazawa, J Oral
-Maxillofac Surg 54, 1996: 36 to 39 degrees of ramus rotation with 18 to 20 mm of condylar
-translation at maximal opening). Speech uses far less than mastication (Ostry and
-Munhall, J Neurophysiol 1994; Edwards and Harris, J Speech Hear Res 33, 1990: rotation
-about the hinge axis with a forward translation of the axis). Protrusion -1 to 10 mm:
-the retruded contact position lies about 1 mm behind the intercuspal one and maximal
-protrusion is about 10 mm (U. Posselt, Acta Odontol Scand 10, suppl. 10, 1952).
+Ranges (JAW_RANGES): opening 0 (teeth in occlusion) to 20 degrees, protrusion -1 to 10 mm.
 
 Output. incisor_opening (mm) = |L' - I|, L the point of the mandible at I with the jaw
 closed: 0 at rest, 2 * 86.6 sin(theta / 2) for a pure rotation.
+
+Derivation of the axis and the sources of the ranges: docs/method.md, section 'The jaw's
+axis and ranges'.
 """
 
 import math

@@ -6,41 +6,29 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
 
 * RigidContact (lips and cheeks on the teeth): the term's kernel (rigid_contact, with
   the term's arguments) on the slave positions x_s = X_s + V_s q, with short candidate
-  lists. The kernel's answer for a slave depends on the nearest triangle among its
-  candidates only, and the term's candidate lists hold every triangle within its search
-  radius (+ reach) of the slave, so that the term finds the nearest triangle of the whole
-  surface whenever it is within the search radius (the contact depth), and no contact
-  otherwise. Here, at a reference position x_ref of every slave, with d_i the distance of
-  slave i to the surface there, the list of i holds the triangles within d_i + 2 delta of
-  x_ref,i.
-  While |x_i - x_ref,i| <= delta, the nearest point of the surface to x_i (at a distance
-  <= d_i + delta) lies in a triangle of that list: the kernel finds the same nearest
-  triangle, hence the same gap and force, as the term (a slave with d_i - delta above the
-  contact depth gets an empty list: out of contact either way). The lists are rebuilt
-  (one brute-force numba pass over the triangles) when a slave has moved more than delta
-  (0.5 mm in solver.rom.simulation; at least MOVING_DELTA on a surface that follows the
-  jaw while the jaw moves, whose motion counts against it too). Slaves are not skipped
-  by distance: beyond a free edge the term's penalty is not a function of the distance
-  alone.
+  lists: at a reference position x_ref,i of slave i, d_i from the surface, the triangles
+  within d_i + 2 delta. While the slave has moved by at most delta (its motion plus the
+  surface's, when the jaw moves) the kernel finds the same nearest triangle, gap and force
+  as the term; beyond, the lists are rebuilt (one brute-force numba pass; delta 0.5 mm in
+  solver.rom.simulation, at least MOVING_DELTA on a surface that follows a moving jaw).
+  Slaves are not skipped by distance: beyond a free edge the penalty is not a function of
+  the distance alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
-  refreshed in the term's own normals object on the rows the kernel reads (the candidate
-  triangles' faces, edges and vertices: _Normals.read); private copies of the pair work
+  refreshed on the rows the kernel reads (_Normals.read); private copies of the pair work
   arrays.
 * anything else: the term's assemble() on a full-size displacement filled at the
   contact nodes only (the generic, slower path; solver.rom.reduced does the same).
 
 The jaw (set_pose): the contact nodes sit at X + L + V q (L the lifting,
-solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to). A
-rigid adapter's lists stay valid while a slave's motion plus the surface's since the
-lists were built is at most delta (the slave's distance to every triangle has changed by
-at most that sum); the surface's motion between two poses is bounded by
-|d theta| R + |d p|, R the moving vertices' largest distance from the jaw's axis.
-Beyond it the lists are rebuilt on the moved surface.
+solver.rom.lifting), and the lower teeth at the jaw's pose (RigidContact.move_to).
 
 Each adapter adds V_b^T f_b (and V_b^T K_b V_b) of its active blocks (project_nodal) and
 reports its normal contact force (N) and its active set (for the tangent's refresh).
 tests/test_rom_online.py checks the adapters against the terms' assemble().
+
+Why the candidate lists hold, and the jaw's bound: docs/method.md, section 'Reduced
+contact'.
 """
 
 import numpy as np

@@ -11,41 +11,30 @@ a message, in this process).
 
 Time stepping (solver.rom.stepper): backward Euler in reduced coordinates at fixed
 substeps of at most h = 1 ms, activations ramping within a caller's step as in the full
-model (hold "ramp"); method "fast" (default): modified Newton with a frozen reduced
-tangent on the fast online operator (solver.rom.online); "reference": the reference
-implementation the fast one is tested against (full tangents of cables and contact at
-every iteration, the generic contact path). Converged when |dq| <= utol (mm; default
-1e-2: the model's own error against the full one is tenfold or more, and a tighter utol
-moves the outputs by less than 1e-3 mm). A substep that does not converge in max_iter
-iterations (or inverts a brick) is split in four, twice at most.
-
-Damping: C = alpha M + beta K_n as in the full model, K_n the passive small-strain
-stiffness on the shape at the start of a substep, hyper-reduced by the cubature
-(V^T K_n V ~ sum_e w_e V_e^T K_n,e V_e) and rebuilt every `damping_refresh` substeps
-(damping="current", default); damping="rest" keeps the constant V^T K_0 V (cheaper, but
-0.3-0.6 mm off the full model on training patterns: the rest K_0 damps turned tissue
-with the bulk modulus, solver/core/terms/inertia.py).
+model (hold "ramp"); method "fast" (default: modified Newton with a frozen reduced
+tangent on solver.rom.online) or "reference" (the implementation the fast one is tested
+against). Converged when |dq| <= utol (mm; default 1e-2). Damping C = alpha M + beta K_n
+with K_n hyper-reduced by the cubature and rebuilt every `damping_refresh` substeps
+(damping="current", default), or the constant V^T K_0 V (damping="rest").
 
 The jaw: u = V q + L(p), the lifting L of the jaw's pose p (solver.rom.lifting), ramping
-within a step as in the full model. A model records the poses its snapshots covered
-(meta "jaw_envelope"); a target pose outside them is outside the model's training
-envelope: a TrustWarning naming it, and the full model from then on (trust "fallback").
+within a step as in the full model. A target pose outside the poses the model's
+snapshots covered (meta "jaw_envelope"): a TrustWarning naming it, and the full model
+from then on (trust "fallback").
 
-Trust check (solver.rom.trust): every `check_every` substeps, the full-order residual of
-the reduced solution u = V q + L on the free DOFs, with inertia and damping, relative to the
-force scale max(|f_tissue|, |f_cables|, 1e-3 N): rho = |R_free(V q)| / scale. And after
-every step, the contact's deepest penetration at its last force evaluation (the terms'
-own gap measure): beyond the contact tolerance (solver.face.terms.contact.TOLERANCE) the
-basis cannot hold the contact the full model would, which the residual may not show.
+Trust check (solver.rom.trust): every `check_every` substeps, rho = |R_free(V q)| / scale,
+the full-order residual of u = V q + L on the free DOFs (with inertia and damping) over
+the force scale max(|f_tissue|, |f_cables|, 1e-3 N), against the model's trust threshold;
+after every step, the contact's deepest penetration against
+solver.face.terms.contact.TOLERANCE. trust="fallback" (default): a warning, the caller's
+step is redone by the full model from the reduced state at its start, and the simulation
+stays full-order from then on (`mode` = "full"); "warn": a warning the first time for
+each cause (penetration, residual), every such step counted in `trust_exceeded` {cause:
+steps}; "off": no check. A substep that fails after every split also falls back (or
+fails, with trust "warn"/"off").
 
-rho above the model's trust threshold (calibrated in training: a multiple of the largest
-rho met on training patterns) means the state has left the span the model was trained
-on. trust="fallback" (default): a warning, the caller's step is redone by the full model
-from the reduced state at its start, and the simulation stays full-order from then on
-(`mode` = "full"); "warn": a warning the first time for each cause (penetration,
-residual), every such step counted in `trust_exceeded` {cause: steps}; "off": no check.
-A substep that fails after every split also falls back (or fails, with trust
-"warn"/"off").
+Why these defaults, and what the trust check measures: docs/method.md, sections 'Reduced
+time stepping' and 'Trust check and fallback'.
 """
 
 import warnings

@@ -13,26 +13,15 @@ rest one (damping "rest").
 
 Two Newton methods, for the same equations:
 
-* "fast" (default): modified Newton on solver.rom.online.OnlineOperator.
-  - The damping force beta V^T K_n V (q - q_n) / h is evaluated matrix-free at every
-    iteration, K_n on the shape at q_n of this substep: exact, as the full model, which
-    rebuilds K_n every substep (solver/core/terms/inertia.py).
-  - The tangent J = M_r / h^2 + alpha M_r / h + (beta / h) Kn + K_bricks + K_switch is
-    kept, LU-factorized, across iterations and substeps: Kn and K_bricks from some earlier
-    shape and activations, K_switch (cables, each contact term) rebuilt for a part
-    whenever its set of taut cables or active slaves differs from the one it was built
-    on. When an iteration converges slowly (|dq_k| > rate |dq_k-1|, or max_frozen
-    iterations), the tangents are refreshed: first the switching parts, then Kn and
-    K_bricks, the latter at the current activations on its shape (split as tissue + unit
-    stiffening per brick: solver.rom.online.brick_tangent) and rebuilt on the current
-    shape when older than kb_every substeps; a residual that grows tenfold also halves
-    the step back. J changes the path of the iteration, not its root. The correction
-    solves with J's LU factors in one small kernel (online_kernels.lu_solve_small).
-  - Predictor: q_n + h v_n + h^2 a_n (the last substep's acceleration).
-  - Converged when |dq| <= utol and theta / (1 - theta) |dq| <= utol, theta the observed
-    contraction |dq_k| / |dq_k-1| (the last substep's at the first iteration): the error
-    left by a linearly converging iteration, so that a frozen tangent stops as close to
-    the root as full Newton stopping at |dq| <= utol (tests compare the two).
+* "fast" (default): modified Newton on solver.rom.online.OnlineOperator. The damping
+  force is evaluated matrix-free at every iteration (exact); the tangent
+  J = M_r / h^2 + alpha M_r / h + (beta / h) Kn + K_bricks + K_switch is kept,
+  LU-factorized, across iterations and substeps, and refreshed when an iteration
+  converges slowly (rate, max_frozen: first the switching parts K_switch, then Kn and
+  K_bricks, rebuilt on the current shape when older than kb_every substeps). J changes
+  the path of the iteration, not its root. Predictor: q_n + h v_n + h^2 a_n. Converged
+  when |dq| <= utol and theta / (1 - theta) |dq| <= utol, theta the observed contraction
+  |dq_k| / |dq_k-1|.
 * "reference": solver.rom.reduced.ReducedOperator, the bricks' tangent refreshed every
   `refresh` substeps, cables and contact tangents at every iteration, C_r rebuilt every
   `damping_refresh` substeps (the reference the fast method is tested against,
@@ -45,6 +34,9 @@ The caches (tangents, predictor, contact candidate lists) change the path, not t
 for exact rollbacks, reset_caches() (called by the simulation's get_state and set_state)
 makes the next step start from fresh caches, so that a step repeated from a restored
 state gives the same answer bit for bit.
+
+The fast method's refresh rules and its stopping test: docs/method.md, section 'Reduced
+time stepping'.
 """
 
 import math

@@ -1,36 +1,17 @@
 r"""Offline training of a realtime (reduced) model from full-order snapshot runs.
 
-1. Snapshots: `runs` full-order transient runs of `duration` s (the scene's full model at
-   the realtime knobs: coarse generic half face, loose tolerances), each under a random
-   activation pattern of the scene's driven muscles (`random_schedules`: one to four
-   muscles ramping 0 -> U(0.1, 1) over U(0.05, 0.1) s from U(0, 0.05) s, half of them
-   relaxing again; otherwise one run in four co-activates five or more at U(0, 0.6)); the
-   displacements are recorded every `interval` s. The first 2 x (driven muscles) runs
-   each have a primary muscle (every muscle twice) at U(0.6, 1), with up to three others
-   at U(0.1, 1). Where the face has a jaw, `jaw_runs` more runs move it (random_jaw:
-   the opening ramping to U(5, 20) deg, the protrusion, one run in three, to U(-1, 10)
-   mm: solver.face.jaw.JAW_RANGES) with one to three muscles at U(0.1, 1). Then
-   `phrase_runs` speech-like runs of `phrase_duration` s (`random_phrase`, their own
-   random stream `phrase_seed`): two or three phases, each a new target (one to five
-   muscles at U(0.1, 1), each other muscle back to 0 or, one time in three, held),
-   reached over U(0.02, 0.08) s; every third phrase moves the jaw's opening with its
-   phases as well; then `jaw_phrase_runs` more phrases, every one moving the jaw
-   (their own stream `jaw_phrase_seed`). Single ramps from rest leave out what speech
-   does: one gesture taking over from another while the tissue still moves (without the
-   phrases, a held-out open-then-round gesture came out several times further off than
-   its states lie from the basis), and the muscles acting on a jaw that opens or closes
-   under them (with a held-out jaw gesture's own full-order states added to the basis,
-   the reduced model follows it to 0.03 mm, without them 0.38 mm:
-   docs/dev-notes/realtime-balanced.md).
-   The poses covered are the model's "jaw_envelope". A run that takes longer than
-   max_wall keeps the snapshots it has.
-   Runs are independent tasks: through a dask client (solver.sweep.Sweep,
-   `snapshot_task`) or in this process.
+1. Snapshots: full-order transient runs of the scene's model at the realtime knobs
+   (coarse generic half face, loose tolerances) under random activation patterns of the
+   scene's driven muscles: `runs` runs of `duration` s (`random_schedules`), `jaw_runs`
+   that move the jaw as well (`random_jaw`), `phrase_runs` speech-like phrases of
+   `phrase_duration` s (`random_phrase`, stream `phrase_seed`) and `jaw_phrase_runs`
+   phrases that all move the jaw (stream `jaw_phrase_seed`); the displacements are
+   recorded every `interval` s. The poses covered are the model's "jaw_envelope". A run
+   that takes longer than max_wall keeps the snapshots it has. Runs are independent
+   tasks: through a dask client (solver.sweep.Sweep, `snapshot_task`) or in this process.
 2. Basis: POD of the snapshots on the free DOFs (solver.rom.pod), size by captured energy,
    in two stages where the jaw moves: V_1 of the muscle runs, then V_2 of what V_1 leaves
-   of the jaw runs (u - V_1 V_1^T u), to `energy` and `jaw_energy`; V = [V_1 V_2]. The jaw runs'
-   centimetres would otherwise take the energy criterion's modes from the lips'
-   millimetres (docs/dev-notes/realtime-balanced.md).
+   of the jaw runs (u - V_1 V_1^T u), to `energy` and `jaw_energy`; V = [V_1 V_2].
 3. Cubature: ECSW (solver.rom.ecsw) over up to `ecsw_states` snapshots projected on the
    basis, u = V V^T u_j + (u_j on the prescribed DOFs: the jaw's lifting), with their
    activations (tissue + stiffening per brick).
@@ -40,6 +21,9 @@ r"""Offline training of a realtime (reduced) model from full-order snapshot runs
    the threshold is `trust_factor` times the largest full-order residual rho met
    (solver.rom.simulation), at least `trust_floor`. The largest displacement and lip
    output differences to the full runs of those patterns are stored in meta.
+
+The random patterns, and why phrases and a two-stage basis: docs/method.md, section
+'Training'.
 """
 
 import time

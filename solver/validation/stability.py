@@ -11,48 +11,30 @@ Invariants, checked by ``run_case`` after every accepted step (every tenth in ru
 more than 1000 steps; ``check_state``):
 
   finite        u, v and every output are finite
-  det F         det F > 0 at every Gauss point of every brick (det F = det J / det J0:
-                no brick is inverted), computed at the accepted state
+  det F         det F > 0 at every Gauss point of every brick (no brick is inverted)
   penetration   the deepest lip-into-tissue and tissue-into-teeth penetration (mm),
-                measured outside the model (``Probe``: lip nodes inside bricks they do not
-                belong to, signed distances to the teeth), so also where the scene's
-                contact is off; at most CONTACT_TOLERANCE where it is on
-  bounds        lip_aperture >= 0, lip_width > 0, and every lip output within the size of
-                the face (bounding box): a broken state, not a physical judgement
-  dissipation   the damping's dissipated energy never decreases (increment >= 0)
-  statistics    substeps >= 1, Newton iterations >= 0 and cutbacks >= 0, the cutbacks
-                also in Simulation.outputs()
-A refused step (no convergence after every cutback) must leave the state exactly as it
-was (t, u, v, activations, dissipated energy), and the accepted steps must equal, bit for
-bit, a fresh run that never tried the refused ones; a case expects no refusal unless it
-names the step. ``run_case`` returns the outputs after each step and the worst values seen.
-A long run also checks that memory does not grow and, under a held activation, that the
-state settles on the static equilibrium and never drifts away from it. A rollback case
-restores the state after its steps and repeats the last step many times: every repeat
-must give the same outputs, bit for bit.
-
+                measured outside the model (``Probe``), also where the scene's contact
+                is off; at most CONTACT_TOLERANCE where it is on
+  bounds        lip_aperture >= 0, lip_width > 0, every lip output within the face's size
+  dissipation   the damping's dissipated energy never decreases
+  statistics    substeps >= 1, Newton iterations >= 0 and cutbacks >= 0
+A refused step must leave the state exactly as it was, and the accepted steps must equal,
+bit for bit, a fresh run that never tried the refused ones; a case expects no refusal
+unless it names the step. ``run_case`` returns the outputs after each step and the worst
+values seen. Long runs also check memory and settling; rollback cases, exact repeats.
 Through the FMU (``fmu_spec``, ``check_fmu_run``, tests/fmu_scripts/stress_case.py): the
-same steps with fmpy; outputs finite and in bounds, the same refusals (fmi2Discard, outputs
-unchanged), and the same outputs as in this process within FMU_MATCH_TOLERANCE.
+same steps with fmpy, the same refusals (fmi2Discard), and the same outputs as in this
+process within FMU_MATCH_TOLERANCE.
 
-Convergence: ``Case.halved()`` halves every substep (``halved(scene)``: substep_tol / 4,
-since backward Euler's local error grows as h^2 and the controller keeps it at the
-tolerance, and max_substep halved, at most half the smallest communication step), over
-the case or its first halving_time seconds; the lip outputs at the communication points
-must then change by less than ``halving_limit(run)``: HALVING_TOLERANCE plus
-HALVING_RELATIVE of the largest lip-output excursion from the start of the case (the
-substep controller bounds each substep's local error, so the global error grows with
-the motion: OOP + BUC without teeth pull the lips back 12 mm in 0.1 s).
-HALVING_TOLERANCE is set for the default substep tolerance (HALVING_AT, 1e-3 mm); a
-scene with a looser one (the presets: 1e-2 to 0.5 mm) is held to
-HALVING_TOLERANCE sqrt(tol / HALVING_AT), a scaling taken from smooth motion: the
-controller keeps the local error ~ c h^2 at tol, so its substeps are h ~ sqrt(tol / c),
-and backward Euler's global error, first order in h, grows as sqrt(tol). It is a
-heuristic, not a bound: the nodes in contact are outside the error estimate
-(solver/core/transient.py), and those presets also loosen Newton's tolerance, which
-halved() keeps. A branch taken one way or the other (pressed lip tips sliding past each
-other: docs/dev-notes/contact-hard-cases.md §6, 1.7 mm) stays far above it. A reduced
-run (fixed substeps) is held to HALVING_TOLERANCE.
+Convergence: ``Case.halved()`` halves every substep (``halved(scene)``: substep_tol / 4
+and max_substep halved), over the case or its first halving_time seconds; the lip outputs
+at the communication points must then change by less than ``halving_limit(run)``:
+HALVING_TOLERANCE, times sqrt(tol / HALVING_AT) for a substep tolerance tol looser than
+HALVING_AT, plus HALVING_RELATIVE of the largest lip-output excursion from the start of
+the case. A reduced run (fixed substeps) is held to HALVING_TOLERANCE.
+
+The invariants in full and the argument for the halving test's limits: docs/method.md,
+section 'Stability cases: invariants and the halving test'.
 """
 
 import math

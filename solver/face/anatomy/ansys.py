@@ -7,98 +7,35 @@ half=False). Your own ANSYS face loads the same way if it is written with the sa
 names and formats. Units: mm. Axes: x medial-lateral (x = 0 mid-sagittal, the subject's
 left at x < 0), y posterior-anterior, z inferior-superior.
 
-Files
------
-Required:
-    newface.node               mesh nodes, ANSYS NWRITE fixed width: node id in columns 1-8,
-                               then x, y, z in 20-character fields (a field may run into the
-                               id, `124-0.534E-08`; NWRITE's optional rotation angles after z
-                               are ignored). Any node ids, in any order.
-    newface.elem               8-node bricks, ANSYS EWRITE: 14 fields of 6 characters, node
-                               ids I..P, MAT, TYPE, REAL, SECNUM, ESYS, element id. A wedge is
-                               a brick with repeated ids (degenerate SOLID185), kept as written.
-    fixed_skull_nose.node      nodes on the skull and nose, format of newface.node, with
-                               the coordinates of newface.node (within 0.001 mm)
-    fixed_mandible.node        nodes on the mandible, likewise
-    muscles.node               cable nodes, format of newface.node; left side 114xxx, the
-                               right side's mirror image is the left id + 20000 (134xxx)
-    muscles.elem               cables (LINK10), format of newface.elem: fields 1-2 are the two
-                               node ids, fields 3-8 zero
-    face_muscles_topology.mac  APDL macro (latin-1) naming each left fibre's nodes:
-                               `ACTIV(i) = LABEL` names muscle i and
-                               `FIBER(i, f, k) = node id` is node k of fibre f; the checks
-                               `NB_FIBERS(i)` and `NB_NODES_FIBER(i, f)` are honoured where
-                               present; text after `!` is a comment.
-    upperlip_filled.smesh,     closed lip surfaces for lip/lip contact: lines `f a b c ...`
-    lowerlip_filled.smesh      (optionally inside `[` ... `]`) whose numbers are node ids of
-                               newface.node. Checked against the coordinates: read so, the
-                               reference face's facets have a mean edge of 2.6 mm and form
-                               closed, outward-oriented surfaces around the lips; read as
-                               0-based indices their edges would reach 90 mm. (Its ids are
-                               1..n, so "1-based index" and "node id" agree there.)
-                               Two facets that split a brick face become that face
-                               (_brick_faces: the contact then follows its bilinear shape).
-Optional (left out of the anatomy when absent):
-    maxilla_lipcontact.obj,    rigid teeth and gums under the upper and lower lips, Wavefront
-    mandible_lipcontact.obj    OBJ (polygons are split into fans of triangles)
-    OOP_active_elements.elem,  bricks around the orbicularis oris fibres, format of
-    OOM_active_elements.elem   newface.elem; lines whose element id is not a brick of
-                               newface.elem (the 4-node surface elements in the reference
-                               OOM file) are ignored, a brick whose nodes differ is an error.
-    OOP_elements.txt           element ids of the paper's OOP region, one a line
+Files. Required: newface.node, newface.elem (the mesh: ANSYS NWRITE nodes, EWRITE 8-node
+bricks, a wedge being a brick with repeated ids), fixed_skull_nose.node, fixed_mandible.node
+(the held nodes), muscles.node, muscles.elem (the LINK10 cables; a right node's id is its
+left mirror's + 20000), face_muscles_topology.mac (the APDL macro naming each left
+fibre's nodes), upperlip_filled.smesh, lowerlip_filled.smesh (closed lip surfaces, facets
+by node id). Optional, left out when absent: maxilla_lipcontact.obj,
+mandible_lipcontact.obj (rigid teeth), OOP_active_elements.elem, OOM_active_elements.elem,
+OOP_elements.txt (the paper's OOP region).
 
-What the anatomy holds
-----------------------
-mesh.node_ids, mesh.element_ids: the file ids; mesh.bricks are 0-based indices.
-node_sets: 'fixed_skull', 'fixed_mandible', 'fixed' (their union), 'midsagittal'
-    (|x| < 0.1 mm: the reference face's mid-plane nodes lie within 0.017 mm of x = 0,
-    the next ones at 0.27 mm).
-element_sets: 'mat_<k>' for each MAT number, 'OOP_active', 'OOM_active' where their files
-    exist, 'OOP_region' from OOP_elements.txt (one element id a line: the OOP region over
-    which the paper reports Table 4's strains). The reference face has MAT 1 everywhere (its wedges are TYPE 2): its three
-    tissue layers share one material and are not marked. No 'layer_*' set is made: stacking
-    bricks through their I-L / M-P faces gives columns of three for 91 % of the bricks only
-    (1932 columns of 3, 114 of 2, 318 single bricks), not a reliable layering.
-Orientation: with the ANSYS I..P order every reference brick has det J > 0 at all Gauss
-    points of the project's element, and is used as written. A mesh whose bricks are all
-    inverted (a mirror image) is reordered explicitly (J <-> L, N <-> P); a mix of inverted
-    and valid bricks is refused by `Mesh`, naming the first bad brick.
+The anatomy: mesh.node_ids, mesh.element_ids are the file ids, mesh.bricks 0-based
+indices; node_sets 'fixed_skull', 'fixed_mandible', 'fixed' (their union), 'midsagittal'
+(|x| < 0.1 mm); element_sets 'mat_<k>' per MAT number and 'OOP_active', 'OOM_active',
+'OOP_region' where their files exist (no 'layer_*' sets: the reference mesh has no
+reliable layering). Bricks are used in ANSYS's I..P order; a mesh whose bricks are all
+inverted (a mirror image) is reordered, a mix is refused by `Mesh`.
 
-Muscles
--------
-The macro's labels are the project's MUSCLE_NAMES (its French comments: 1 DAO triangulaire
-des levres, 2 BUC buccinateur, 3 DLI carre du menton, 4 MENT houppe du menton, 6 OOM
-orbiculaire interne, 7 OOP orbiculaire externe, 8 LLSAN releveur de l'aile du nez,
-9 LAO, 10 RIS, 11 ZYG); MAS (masseter, muscle 5) is skipped. Each macro fibre is a Fibre of
-the left side; its mirror (node id + 20000, a node on x = 0 being its own mirror, checked:
-coordinates mirrored within 0.01 mm, and every left cable of muscles.elem has its mirrored
-cable) is the right fibre, in the same order. The fibres are the macro's, not the chains of
-muscles.elem: OOP and OOM have two fibres a side (upper and lower lip, sharing the node at
-the mouth corner), and the macro closes each OOP fibre at the mid-plane through nodes
-134227 (upper) and 134228 (lower), which muscles.elem does not join: OOP has 14 cables a
-side as in the paper's Table 3, muscles.elem 12. Every chain stays on its side of x = 0
-(the orbicularis chains end on it), so sides are 'left' and 'right'; 'mid' would be a chain
-with points on both sides (or all on x = 0).
+Muscles: the macro's labels are MUSCLE_NAMES (MAS, the masseter, is skipped); each macro
+fibre is a left Fibre, its mirror (node id + 20000) the right one. The fibres are the
+macro's, not the chains of muscles.elem (OOP: 14 cables a side, as in the paper's Table 3).
+Insertions (Fibre.insertion) are the cable points within 0.5 mm of a fixed node and, at a
+bone end of a fibre (nearer to a fixed node than to a lip contact node), the run of
+consecutive points outside the soft-tissue mesh (farther than 0.05 mm from every brick)
+that starts there. Landmarks (node indices), on the lip contact surfaces:
+upper/lower_lip_edge the lowest/highest mid-sagittal node of the upper/lower lip surface,
+upper/lower_lip_front their most anterior mid-sagittal nodes, corner_left/corner_right
+the upper-lip nodes within 0.5 mm of a lower-lip node with the smallest/largest x.
 
-Insertions (Fibre.insertion, attached to bone) are
-  (a) cable points within 0.5 mm of a fixed node, and
-  (b) at a bone end of a fibre, the run of consecutive points outside the soft-tissue mesh
-      (farther than 0.05 mm from every brick) that starts at that end. A fibre end is a
-      bone end when it is nearer to a fixed node than to a node of the lip contact
-      surfaces; ends at the mouth (the OOM corners, which lie in the mouth slit) are not.
-      Bone ends inside the tissue (DAO, DLI, LAO, ZYG: 1.9 to 5.4 mm from a fixed node;
-      RIS, on the masseter fascia, 8 mm) are left to the tissue around them.
-Reference face, per side: BUC 6 (three at each posterior end), LLSAN 6 (three at the shared
-origin by the nose, each fibre), MENT 2 (one outside, one on a fixed node), none elsewhere.
-
-Landmarks (node indices)
-------------------------
-Taken on the lip contact surfaces: upper_lip_edge / lower_lip_edge are the lowest /
-highest mid-sagittal node of the upper / lower lip surface (the free edges bordering the
-mouth slit), upper_lip_front / lower_lip_front their most anterior (largest y) mid-sagittal
-nodes (the front of the vermilion), corner_left / corner_right the upper-lip nodes within
-0.5 mm of a lower-lip node (where the lips join: the nodes both surfaces share) with the
-smallest / largest x.
+File formats, sets, the muscle mapping, insertions and landmarks in full: docs/method.md,
+section 'The reference face: the ANSYS files'.
 """
 
 import re

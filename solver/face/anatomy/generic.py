@@ -5,70 +5,36 @@
 The project's offline default anatomy, built from code alone (no data files), after the
 ANSYS face model of Nazari, Perrier, Chabanas and Payan. Units mm; axes as in base.py.
 
-Construction
-------------
-Surfaces (generic_shape). The tissue lies between a skull surface and the skin. The skull
-(inner) surface is a horizontal U-shaped curve per height z: half an ellipse around the
-front, straight back towards the ears, its front and width varying smoothly with z.
-A point is addressed by (phi, z, w): the angle phi around the U (0 mid-sagittal, sign =
-sign of x), the height z, and the fraction w of the tissue thickness (0 skull, 1 skin).
-The skin is the skull surface pushed out along the curve's horizontal normal by a
-thickness field T(phi, z): lips 13-15 mm at the vermilion fronts (8 mm at the edges on
-the slit), chin 13 mm, cheeks up to 12.5 mm, 6.5-9 mm elsewhere. The mask spans the chin
-and jaw line (lower edge), the lips, the cheeks and the region under the nose, rising beside
-the nose and over the cheekbones to the temples (upper edge), and back towards the ears.
-Full-face bounding box 143.5 x 127.8 x 137.8 mm, as the paper's Table 1.
+A point is addressed by (phi, z, w): the angle phi around a U-shaped skull surface (0
+mid-sagittal, sign = sign of x), the height z, and the fraction w of the tissue thickness
+(0 skull, 1 skin). generic_shape makes the surfaces (the skin is the skull surface pushed
+out by a thickness field; full-face bounding box 143.5 x 127.8 x 137.8 mm, as the paper's
+Table 1); generic_grid the mesh: columns of constant phi, nodes finer around the mouth
+slit, wedges where neighbouring columns hold different numbers of rows; generic_muscles
+ten muscles per side with the fibre and cable counts of the paper's Table 3, and the
+rigid teeth. The (phi, z, w) map does not depend on the level (coarse | medium | paper |
+fine): a finer level samples it more densely.
 
-Grid (generic_grid). Columns of constant phi, with columns at phi = 0 and at the mouth
-corners; along each column the nodes follow a spacing field, finer around the mouth slit.
-Where neighbouring columns hold different numbers of rows (the rows of the lips merging
-beside the mouth corners, the rows of the tall lateral face merging towards the shorter
-front) the strip between them is closed by triangles: the wedges. The surfaces do not
-depend on the level: a finer level samples the same (phi, z, w) map more densely.
-
-    level    nodes   bricks  wedges   (full face; the paper: 8736 nodes, 6344 bricks)
-    coarse    2004     1380   6.1 %
-    medium    4104     2898   4.3 %
-    paper     8732     6288   3.1 %
-    fine     33593    28044   2.2 %   (two brick rows per layer)
-
-Slit. Between the mouth corners the row of the slit is two rows of nodes, one per lip,
-SLIT_GAP (0.4 mm) apart at the mid-line and joined at the corners: the lips separate and
-touch. Lip edges are free. Through the inner layer the slit opens towards the skull
-(generic_shape.slit_opening): the inner lip edges stand 2.4 mm apart on the mid-line, and
-closed lips touch on their outer part.
-
-Layers. Each surface cell is extruded through the thickness into three layers of bricks:
+The mouth slit is two rows of nodes, one per lip, SLIT_GAP (0.4 mm) apart at the mid-line
+and joined at the corners: the lips separate and touch. Three layers of bricks:
 'layer_inner' (w 0-0.45) and 'layer_middle' (0.45-0.82), the hypodermis where the muscles
-run, and 'layer_outer' (0.82-1), epidermis and dermis; each layer one brick row, two at
-the 'fine' level (``rows`` sets it at any level: the convergence study of
-benchmarks/accuracy_vs_time.py refines in the plane and through the thickness apart). Bricks are ordered I..L on the skull side, M..P on the skin side;
-wedges repeat K = L and O = P.
+run, and 'layer_outer' (0.82-1), epidermis and dermis; one brick row each, two at 'fine'
+(``rows`` sets it at any level). Bricks are ordered I..L on the skull side, M..P on the
+skin side; wedges repeat K = L and O = P.
 
-Muscles and teeth (generic_muscles). Ten muscles per side with the fibre and cable counts
-of the paper's Table 3, defined in (phi, z, w) and therefore identical at every level. The
-rigid upper and lower teeth are the skull surface moved back by 0.4 mm over the lips and
-cheeks.
-
-Sets and landmarks
-------------------
-node_sets: 'fixed' (skull-side nodes, except where the lips and cheeks lie on the teeth),
-'fixed_mandible' (those below the row line of the slit, the occlusal plane: on the
-mandible, they follow the jaw), 'fixed_skull' (the others),
-'midsagittal' (x == 0), 'inner_surface', 'outer_surface', 'slit_upper', 'slit_lower'
-(the duplicated slit nodes of each lip, every thickness level).
-element_sets: 'layer_inner', 'layer_middle', 'layer_outer'.
-landmarks: upper/lower_lip_edge (skin nodes at the slit, x = 0), upper/lower_lip_front
-(skin nodes at the vermilion front, x = 0: the most anterior point of each lip),
-corner_left, corner_right (skin nodes at the ends of the slit).
-contact_surfaces 'upper_lip', 'lower_lip': (f, 4) outward boundary faces: the lip's faces
-on the slit and the free skull-side faces above (upper) or below (lower) the slit row
-(lips and cheeks over the teeth); a wedge face repeats a node id.
+Sets and landmarks: node_sets 'fixed', 'fixed_mandible' (they follow the jaw),
+'fixed_skull', 'midsagittal', 'inner_surface', 'outer_surface', 'slit_upper',
+'slit_lower'; element_sets the three layers; landmarks upper/lower_lip_edge,
+upper/lower_lip_front, corner_left, corner_right; contact_surfaces 'upper_lip',
+'lower_lip' ((f, 4) outward boundary faces; a wedge face repeats a node id);
 rigid_surfaces 'upper_teeth', 'lower_teeth'.
 
 Half face (half=True): solver.face.anatomy.half.half_anatomy of the full face: bricks with
 every node at x <= 0, the left fibres; 'corner_right' is omitted, full-face outputs follow
 by symmetry.
+
+Construction (surfaces, grid, slit, layers, teeth) and the sets' definitions:
+docs/method.md, section 'The generic face: construction'.
 """
 
 import numpy as np

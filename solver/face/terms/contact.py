@@ -1,153 +1,43 @@
 r"""Frictionless penalty contact: lips on the rigid teeth, lip on lip.
 
-Both terms are node-on-surface: a slave node x meets a triangulated master surface.
+Both terms are node-on-surface: a slave node x meets a triangulated master surface. c is
+the closest point of the master's candidate triangles to x, d = x - c, and the signed gap
+is g = -|d| if (x - c) . N <= 0, else +|d| (N the pseudo-normal of the closest face, edge
+or vertex; n = -d / |d| the outward normal for g < 0). Per slave node i, with the
+stiffness k_i = penalty * A_i (A_i the node's area, a quarter of each of its boundary
+faces; penalty in N/mm^3):
 
-Gap. c is the closest point of the master surface to x (over a candidate set of
-triangles; on a face, an edge or a vertex of a triangle), d = x - c, and
+    Psi_i = 1/2 k_i g^2 (g <= 0, else 0),   dPsi/dx = k_i d,   d2Psi/dx dx = k_i (I - dc/dx)
 
-    g = -|d|  if (x - c) . N <= 0,  else +|d|,
+(k_i n n on a face, k_i (I - t t) on an edge, k_i I at a vertex; a deformable master
+triangle's nodes get their share by the envelope theorem, solver.core.kernels.contact). A
+node pressed with the force f penetrates by f / k_i: pure penalty, PENALTY = 1 N/mm^3 lip
+on lip (a scene's lip_penalty), TEETH_PENALTY = 2 N/mm^3. Beyond a free edge of an open
+sheet the penalty fades out over L = fade (1 mm), Psi_i = psi(a) phi(l / L); optionally
+(smoothing s > 0 mm, off by default) the law is smoothed over |g| < s (penalty_law).
 
-with N the pseudo-normal of the closest feature (the face's normal; on an edge the mean of
-its two faces' normals; at a vertex the angle-weighted normal): the signed distance to the
-surface, negative inside. The outward normal is n = -d / |d| for g < 0 (the face normal
-on a face). An open sheet (the teeth, the lips) has free boundary edges: a node whose
-closest point lies on one (or on a free boundary vertex) has no side. Such a node is not
-released (a jump in force, on which Newton stalls) but its penalty fades out, on the plane
-of the boundary (normal N): with the depth a = -N . d behind it and the distance
-l = |d + a N| beyond the edge,
+RigidContact: lips and cheeks on the rigid teeth. The sheet is oriented towards the
+tissue; slaves behind it at rest by more than rest_tolerance, or not facing it, are
+dropped (.dropped). Candidates: the triangles within search_radius (a cKDTree of their
+centroids), rebuilt once a slave has moved by more than margin. ``rest_offset`` (on by
+default) gives a slave that the law pushes on at rest a constant offset (.offset) to where
+it is force-free: the anatomy as given is the rest state. Rigid surfaces that share a
+seam are joined into one term (joined_surfaces).
 
-    Psi_i = psi(a) phi(l / L),    phi(s) = 1 - 3 s^2 + 2 s^3 (s < 1; 0 beyond),
+LipContact: two passes (upper-lip nodes on the lower lip's triangles, and the reverse).
+Each lip quad is cut 2 x 2 and each part into four triangles around its centre
+(centred_triangles, pair_maps). Candidate pairs (facing triangles within radius, at most
+max_pairs a slave) are picked at rest and again at every commit (follow_state); the
+sparsity pattern is made again only when a candidate leaves it (blocks_generation) and is
+part of the state (pattern_state). Penetrations deeper than depth (0.5 mm) are ignored.
 
-psi the penalty law below and L = fade (1 mm). At l = 0 this is the face's energy (d is
-along N there) and phi'(0) = 0, so Psi is C1 across the edge; the reported gap is
--a phi.
+After each assembly both terms hold: gap (s,) signed gaps (inf: no candidate or a free
+boundary), force (s,) normal contact forces (N), n_active, max_penetration (mm, >= 0),
+total_force (N) and nodal_force (n, 3). ``linear_gaps(u)`` gives each slave's penetration
+and its gradient (Newton's contact status prediction, solver.core.contact_update).
 
-On the lips N is the face normal of the edge's triangle, held fixed in the force (the
-closest point's sliding included, solver.core.kernels.contact.faded_pair; the normal's turn is
-in the tangent only). In the region of a rim vertex v (a vertex with a free edge among
-the slave's candidates) the law is the same form with a normal blended from the fan at v
-(solver.core.kernels.contact.vertex_pair): with alpha_q the distance from the plane where the
-region meets edge q's,
-
-    N ~ sum_free n_q / alpha_q^2 + c u sum_inner 1 / alpha_q^2,    u = -sgn d / |d|,
-
-so that N is the free edge's face normal where the region meets that edge's, and u
-where it meets an inner edge's (there a = sgn |d| and l = 0: the plain law of the
-edge's end); c (0 to 1 by the alignment of d with the vertex normal) keeps the plain
-distance out where d runs along the surface, beyond a rim's corner. The force is
-continuous across every boundary between regions, except where the nearest triangle
-jumps across a medial axis; Newton stalls at a jump of the force. On the rigid teeth
-(RigidContact, fade 0: released) N is the rim normal (solver.core.kernels.contact.rim_normal):
-the face normal beyond an edge, and beyond a free vertex a blend of the face normals of
-its two free edges' triangles by the point's place in the vertex's region (its turn with
-the point is left out of the force, which stays continuous, and of the tangent). Rigid
-surfaces that share a seam are joined into one term (joined_surfaces), so that a seam is
-an inner edge, not a rim.
-
-Energy, force, tangent. Per slave node i, stiffness k_i = penalty * A_i (A_i its area,
-below; penalty in N/mm^3), penetration p = -g >= 0, F = |d|^2 / 2:
-
-    Psi_i = 1/2 k_i g^2 = k_i F                          where g <= 0 (else 0),
-    dPsi/dx = k_i d                (the contact force on the node, -k_i d = k_i p n),
-    d2Psi/dx dx = k_i (I - dc/dx) = k_i n n on a face, k_i (I - t t) on an edge (t its
-                  unit direction), k_i I at a vertex.
-
-On a rigid facet the normal does not rotate and the tangent is k n n; on edges and
-vertices the closest point moves and the full I - dc/dx is kept. For a deformable master
-triangle (x_1, x_2, x_3) the same F is differentiated over all four nodes by the envelope
-theorem (solver.core.kernels.contact): dF/dX_a = N_a d with N = (1, -w_1, -w_2, -w_3)
-(w: barycentric weights of c), and the Hessian N N^T (x) I - B M^-1 B^T carries the
-rotation of the master's normal and the sliding of c exactly. Psi is C1 across g = 0
-and where the closest point changes feature (not where the nearest triangle jumps across
-a medial axis; beyond a rim, see the fade above); the tangent is
-its exact Hessian for a fixed active set (finite-difference checks in
-tests/test_contact.py). Optionally (smoothing s > 0 mm) the law is smoothed on both
-sides of g = 0: Psi_i = k_i (s - g)^3 / (12 s) over |g| < s, joined (C2) to
-k_i (g^2 / 2 + s^2 / 6) beyond (solver.core.kernels.contact.penalty_law). Contact then begins
-at a gap s, with a stiffness growing from zero, so a node that grazes the surface has no
-kink for Newton's line search to stop at; the penetration at a force f >= k_i s is f / k_i
-as with the pure law, and a node pressed by less stays within s of the surface. The
-tangent is exact but for the curvature of the distance around an edge or a vertex closer
-than s. Off by default (s = 0): over the fast-path gesture the smoothed law stalls where
-the pure one goes through (docs/dev-notes/fast_path.md has the measurements).
-
-Penalty choice: pure penalty, no augmented Lagrangian. A node with the force f
-penetrates by f / (penalty A_i), i.e. a contact pressure p by p / penalty; lip-node areas
-on the reference face are 2 - 20 mm^2 (slave stiffness 2 - 20 N/mm at 1 N/mm^3). Lip on
-lip: PENALTY = 1 N/mm^3 (a scene's lip_penalty), about 0.025 mm per N on the reference
-face's lip nodes. Teeth: TEETH_PENALTY = 2 N/mm^3, as the cheeks carry the largest
-forces (BUC presses them on the teeth). A stiffer penalty costs Newton iterations at each
-new contact; an augmented-Lagrangian update in commit() would come once per step, too
-rarely to converge the multipliers.
-
-RigidContact: node-on-rigid-surface (lips and cheeks on the teeth: on the reference face
-60 lip and 16 cheek nodes per jaw, half face). The sheet (an open
-surface, any triangle orientation) is oriented towards the tissue: by the side on which
-most slaves' tissue lies at rest (the mean centroid of each slave's bricks, which is off
-the surface even where the slave touches it); slave nodes behind the oriented sheet at
-rest by more than rest_tolerance, or whose faces do not face it (zero area), are dropped
-(ids in .dropped). A slave's area is that of its boundary faces (a quarter each)
-projected on the normal of the nearest surface triangle. Search: a cKDTree of the
-triangle centroids; each slave keeps the triangles whose centroid is within
-search_radius + (largest centroid-vertex distance) + margin of its position when the list
-was made, rebuilt once a slave has moved by more than margin. So every triangle within
-search_radius of a slave is a candidate; penetrations deeper than search_radius are not
-seen. Rest offset (``rest_offset``, on by default): a slave that the law pushes on at rest
-(behind the sheet within rest_tolerance, or behind the plane of a rim where its penalty
-fades) takes a constant offset delta_i (.offset) that puts it where the law is force-free
-(onto the surface; beyond a rim onto the rim's plane; with smoothing s at the gap s), and
-the law sees x_i + delta_i: the anatomy as given is the rest state, with no contact force
-(ANSYS's contact option to exclude the initial penetration). As a constant, delta_i leaves
-the force and tangent formulas as they are. The reference face has six such cheek nodes
-on the upper teeth, two of them beyond a rim 0.42 mm behind its plane: without the
-offset the face at rest would move under their contact forces. LipContact has no offset:
-neither anatomy's lips push on each other at rest (tests/test_contact.py).
-
-LipContact: two passes of node-on-surface (upper-lip nodes on the lower lip's triangles
-and the reverse). Each quad of a lip surface is cut into 2 x 2 sub-quads at its edge
-midpoints and centre, and each sub-quad into four triangles around its own centre: all
-virtual vertices, fixed combinations of the quad's corners on its bilinear face
-(centred_triangles). The triangles stay within a 32nd of the quad's warp of its bilinear
-face (the element's own boundary, where the Probe of solver/validation/stability.py measures
-penetration); four triangles around the quad's centre alone stay within an eighth, a
-split along one diagonal within a half. A surface of triangles is used as it is. A pair's
-block holds the slave and the quad's four nodes; the kernel works on the triangle's
-vertices, mapped to those nodes linearly (pair_maps). Candidate (slave node, master
-triangle) pairs: master triangles within radius of the slave that face it (normals
-opposed: some face of the slave at that node has n . the triangle's normal < 0, so that a
-node on an edge of its lip, e.g. where the slit meets the inner face, also sees the other
-lip's inner face that it may wrap around; and the slave in front of the triangle's plane,
-or behind it by at most `behind`), which keeps the backs and the filled caps of closed lip
-surfaces out; at most max_pairs (48) nearest per slave. They are picked at rest and again
-at every converged state (follow_state, at each commit), so that a lip sliding over the
-other keeps the patch under it. The sparsity pattern does not follow every change: a
-pass's pattern block holds a row (slave, the quad's four nodes) for every quad within
-radius + pattern_margin (3 mm) of the slave, facing or not, where it was last made (it
-holds the candidates of every state in which no node has moved by more than half the
-margin since); it is made again (blocks_generation, and the System
-rebuilds its pattern, its reduction and the factorization's analysis) only when a
-candidate falls outside it, and only the active pairs' rows are scattered. The pattern is
-part of the state (pattern_state, System.snapshot): a restored state gets back the pairs
-and the pattern it had, so that a repeated step repeats exactly. Every node of a lip
-surface that is not on both (the joined mouth corners) is a slave, also one without
-candidates at rest (unless follow is off), and a slave inside the other lip at rest by more than rest_tolerance
-is dropped. Each slave takes its nearest candidate;
-penetrations deeper than depth (0.5 mm, ten times the 0.05 mm tolerance) are ignored: a
-node that came in elsewhere than through its candidates. An edge of a slave's candidate
-triangles whose other face is no candidate of that slave (the facing test drops the far
-side of the lip's rim) is free for that slave: beyond it the pseudo-normal's sign test is
-meaningless (d perpendicular to the edge's pseudo-normal flips the sign of the gap), so
-the penalty fades there as beyond a free edge, and around such an edge's vertices by the
-rim vertex law above. Only the active pairs are scattered. On a half model the lip
-surfaces end on the symmetry plane: their edges there are mirror edges, whose
-pseudo-normals include the mirrored surface, not free edges.
-
-After each assembly both terms hold: gap (s,) signed gaps of their slaves (inf: no
-candidate or a free boundary), force (s,) the slaves' normal contact forces (N), n_active,
-max_penetration (mm, >= 0), total_force (N, the sum of force) and nodal_force (n, 3): the
-contact force on every mesh node (on the slaves and, for LipContact, on the master nodes).
-``linear_gaps(u)`` gives each slave's penetration and its gradient over the slave and
-master nodes (Newton's contact status prediction, solver.core.contact_update).
+Derivation, free edges and rims, the penalty choice, both terms in full: docs/method.md,
+section 'Contact: lips on lips, lips and cheeks on the teeth'.
 """
 
 import itertools
