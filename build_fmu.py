@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parent
 REQUIREMENTS = """numpy>=1.26
 scipy>=1.11
 numba>=0.59
+threadpoolctl>=3.5
 pypardiso>=0.4.6; platform_machine == 'x86_64'
 """
 

@@ -17,7 +17,6 @@ are read from the repository's patches/ folder.
 import hashlib
 import os
 import platform
-import re
 import shutil
 import subprocess
 import sys
@@ -26,6 +25,8 @@ import tarfile
 import tempfile
 import zipfile
 from pathlib import Path
+
+from solver.core._cache import user_cache_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 PATCHES = ROOT / "patches" / "pythonfmu"
@@ -38,12 +39,6 @@ LIMITED_API = "0x030B0000"             # Python's stable ABI as of 3.11 (require
 
 class WrapperUnavailable(Exception):
     """The corrected wrapper cannot be built here (the message says why)."""
-
-
-def _cache_root():
-    if os.environ.get("FACEFMU_CACHE_DIR"):
-        return Path(os.environ["FACEFMU_CACHE_DIR"])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "facefmu"
 
 
 def _sha256(path):
@@ -74,53 +69,16 @@ def _sdist(folder):
 
 
 def apply_patch(text, root):
-    """Apply a unified diff (paths a/... b/... relative to root) to the files under root,
-    strictly: every hunk's context and removed lines must be where the hunk says."""
-    lines = text.splitlines(keepends=True)
-    i, changed = 0, []
-    while i < len(lines):
-        if not (lines[i].startswith("--- ") and i + 1 < len(lines)
-                and lines[i + 1].startswith("+++ ")):
-            i += 1
-            continue
-        target = lines[i + 1][4:].split("\t")[0].strip()
-        if not target.startswith("b/"):
-            raise ValueError(f"bad file header at line {i + 2}")
-        path = root / target[2:]
-        old = path.read_text().splitlines(keepends=True)
-        new, pos, i = [], 0, i + 2
-        while i < len(lines) and lines[i].startswith("@@ "):
-            m = re.match(r"@@ -(\d+)(?:,(\d+))? \+\d+(?:,(\d+))? @@", lines[i])
-            if m is None:
-                raise ValueError(f"bad hunk header at line {i + 1}")
-            n_old, n_new = int(m.group(2) or 1), int(m.group(3) or 1)
-            start = int(m.group(1)) - (1 if n_old else 0)
-            if start < pos:
-                raise ValueError(f"hunks out of order at line {i + 1}")
-            new += old[pos:start]
-            pos, i = start, i + 1
-            while n_old or n_new:
-                line = lines[i] if i < len(lines) else ""
-                tag, body = (line[:1], line[1:]) if line.strip("\r\n") else (" ", "\n")
-                if tag in (" ", "-"):
-                    if pos >= len(old) or old[pos].rstrip("\r\n") != body.rstrip("\r\n"):
-                        raise ValueError(f"{target[2:]} does not match at line {pos + 1}")
-                    if tag == " ":
-                        new.append(old[pos])
-                        n_new -= 1
-                    pos, n_old = pos + 1, n_old - 1
-                elif tag == "+":
-                    new.append(body)
-                    n_new -= 1
-                elif tag != "\\":
-                    raise ValueError(f"bad hunk line {i + 1}")
-                i += 1
-            if n_old < 0 or n_new < 0:
-                raise ValueError(f"hunk ending at line {i} has the wrong length")
-        new += old[pos:]
-        path.write_text("".join(new))
-        changed.append(path)
-    return changed
+    """Apply a unified diff (paths a/... b/... relative to root) to the files under root
+    with `git apply`, strictly (no fuzz: every hunk's context must match); ValueError with
+    git's message where a hunk does not apply (nothing is then changed)."""
+    git = shutil.which("git")
+    if git is None:
+        raise ValueError("git is needed to apply the wrapper's patches")
+    run = subprocess.run([git, "apply", "--whitespace=nowarn", "-"], input=text, text=True,
+                         cwd=root, capture_output=True)
+    if run.returncode != 0:
+        raise ValueError(run.stderr.strip() or f"git apply failed ({run.returncode})")
 
 
 def _compiler():
@@ -150,7 +108,7 @@ def patched_wrapper():
     key = hashlib.sha256("\0".join(
         [SDIST[2], LIMITED_API, str(include), " ".join(cxx), version]
         + [p.read_text() for p in patches]).encode()).hexdigest()[:16]
-    cache = _cache_root() / "pythonfmu-wrapper"
+    cache = user_cache_dir() / "pythonfmu-wrapper"
     out = cache / key / "libpythonfmu-export.so"
     if out.is_file():
         return out

@@ -14,11 +14,11 @@ made for (``refactor(K, tag)``; ``tag`` None: no valid factorization), so that N
 tangent as long as that converges fast enough.
 
 BLAS threads: ``single_threaded_blas()`` runs a block with every OpenBLAS loaded in the
-process at one thread and restores the caller's setting after. OpenBLAS threads its
-level-1 routines above about 10^4 entries, so numpy's dot products and norms of Newton's
-vectors would run on several threads, which then compete with numba's workers (and any
-other process) for the cores: on a loaded machine a threaded dot product of Newton's size
-waits for its threads far longer than it computes.
+process at one thread (threadpoolctl) and restores the caller's setting after. OpenBLAS
+threads its level-1 routines above about 10^4 entries, so numpy's dot products and norms
+of Newton's vectors would run on several threads, which then compete with numba's workers
+(and any other process) for the cores: on a loaded machine a threaded dot product of
+Newton's size waits for its threads far longer than it computes.
 """
 
 import contextlib
@@ -42,8 +42,7 @@ def _cpus():
 # MKL (PARDISO) threads: one per CPU this process may run on, unless the user (or a host:
 # dask's nanny sets one thread per sweep worker) chose; set before pypardiso loads MKL.
 # PARDISO gains from every core it gets (benchmarks/fast_path.py at MKL_NUM_THREADS=2
-# against 1; docs/dev-notes/fast_path.md). Inside an FMU `auto` is SuperLU
-# (facefmu/facefmu_slave.py): MKL is loaded there only where a scene asks for it.
+# against 1; docs/dev-notes/fast_path.md). The FMU's slave runs the scene's solver too.
 os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 # MKL's OpenMP threads go to sleep as soon as a PARDISO call ends (KMP_BLOCKTIME=0; Intel's
 # default spins for 200 ms), so that they do not take the cores from the numba kernels
@@ -51,28 +50,13 @@ os.environ.setdefault("MKL_NUM_THREADS", str(_cpus()))
 os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
-def _openblas_threads():
-    """[(get, set)] ctypes functions of each OpenBLAS library loaded in this process
-    (found in /proc/self/maps on Linux; elsewhere none), computed once."""
+def _openblas():
+    """threadpoolctl's controller of the OpenBLAS libraries loaded in this process (numpy's
+    and scipy's), made at the first call. MKL is left alone: PARDISO gains from every core."""
     global _OPENBLAS
     if _OPENBLAS is None:
-        _OPENBLAS = []
-        try:
-            with open("/proc/self/maps") as fh:
-                paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower()}
-        except OSError:
-            paths = set()
-        for path in sorted(paths):
-            try:
-                lib = ctypes.CDLL(path)
-            except OSError:
-                continue
-            for prefix in ("scipy_", ""):
-                for suffix in ("64_", ""):
-                    get = getattr(lib, f"{prefix}openblas_get_num_threads{suffix}", None)
-                    put = getattr(lib, f"{prefix}openblas_set_num_threads{suffix}", None)
-                    if get is not None and put is not None:
-                        _OPENBLAS.append((get, put))
+        from threadpoolctl import ThreadpoolController
+        _OPENBLAS = ThreadpoolController().select(internal_api="openblas")
     return _OPENBLAS
 
 
@@ -82,15 +66,8 @@ _OPENBLAS = None
 @contextlib.contextmanager
 def single_threaded_blas():
     """Run the block with one OpenBLAS thread; the caller's thread counts after."""
-    libs = _openblas_threads()
-    before = [get() for get, _ in libs]
-    for _, put in libs:
-        put(1)
-    try:
+    with _openblas().limit(limits=1):
         yield
-    finally:
-        for (_, put), n in zip(libs, before):
-            put(n)
 
 
 class _Reusable:
