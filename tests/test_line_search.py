@@ -5,7 +5,8 @@ from types import SimpleNamespace
 import numpy as np
 from conftest import assert_same_lips, gesture_both_ways
 
-from solver.core.newton import NewtonOptions, _Line, _line_search, _Secant
+from solver.core.linesearch import Line, Secant, line_search
+from solver.core.newton import NewtonOptions
 
 
 class _Lined:
@@ -40,7 +41,7 @@ class _Lined:
 
 def _line(system):
     du = np.array([1.0, 0.2, -0.2, 0.0])
-    return _Line(system, np.zeros(4), du)
+    return Line(system, np.zeros(4), du)
 
 
 def test_the_secant_model_is_exact_where_the_smooth_part_is_linear():
@@ -48,7 +49,7 @@ def test_the_secant_model_is_exact_where_the_smooth_part_is_linear():
     a linear smooth part, everywhere between, kinks of the contact included."""
     system = _Lined("kink")
     line = _line(system)
-    model = _Secant(line, line(0.0), line(1.0))
+    model = Secant(line, line(0.0), line(1.0))
     for s in (0.0, 0.1, 0.3, 0.45, 0.8, 1.0):
         assert np.allclose(model(s), system.residual(s * line.du), atol=1e-13)
 
@@ -63,7 +64,7 @@ def test_a_kinked_line_is_searched_on_the_model_with_two_residuals():
         line = _line(system)
         r0 = line(0.0)
         system.residuals = 0
-        s = _line_search(line, r0, NewtonOptions(secant_search=on))
+        s = line_search(line, r0, NewtonOptions(secant_search=on))
         g = float(line.du @ system.residual(s * line.du))
         assert abs(g) <= 0.5 * abs(float(line.du @ r0))
         found[on] = (s, system.residuals - 1)
@@ -82,7 +83,7 @@ def test_a_jump_ends_the_search_at_the_best_step_without_more_residuals():
         line = _line(system)
         r0 = line(0.0)
         system.residuals = 0
-        s = _line_search(line, r0, NewtonOptions(secant_search=on))
+        s = line_search(line, r0, NewtonOptions(secant_search=on))
         assert 0.6 < s < 0.7
         found[on] = system.residuals
     assert found[True] == 2
@@ -99,7 +100,7 @@ def test_the_norm_tests_see_the_free_dofs_not_the_reactions():
     r0 = line(0.0)
     n0, n1 = np.linalg.norm(r0), np.linalg.norm(line(1.0))
     assert n1 > n0                                # the whole vector grew
-    assert _line_search(line, r0, NewtonOptions()) == 1.0
+    assert line_search(line, r0, NewtonOptions()) == 1.0
 
 
 def test_secant_search_saves_residuals_and_reaches_the_same_state():

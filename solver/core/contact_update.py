@@ -62,15 +62,13 @@ class ContactUpdate:
         cache of solved columns (the gaps at u are kept for the direction that follows at
         the same u)."""
         self._marked = (u, self._gaps(u))
-        lin.contact_status = (lin.factorizations,
-                              [None if g is None else g[3] >= 0 for g in self._marked[1]], {},
-                              self._marked[1])
+        lin.notes["contact_status"] = (
+            [None if g is None else g[3] >= 0 for g in self._marked[1]], {}, self._marked[1])
 
     def _status(self, lin):
         """(base masks, column cache, gaps at the mark) of lin's current factorization, or
         None."""
-        status = getattr(lin, "contact_status", None)
-        return status[1:] if status is not None and status[0] == lin.factorizations else None
+        return lin.notes.get("contact_status")
 
     def correct(self, lin, u, du):
         """du (ndof,) corrected for the predicted status (the module docstring), or du

@@ -62,10 +62,10 @@ class KrylovDirection:
     def of(cls, system):
         """The one for system's current constraints (built once: the gather of the
         contact's entries costs a sort over the pattern)."""
-        kept = getattr(system, "_krylov", None)
+        kept = system.helpers.get("krylov")
         if kept is None or kept[0] is not system.reduction:
             kept = (system.reduction, cls(system))
-            system._krylov = kept
+            system.helpers["krylov"] = kept
         return kept[1]
 
     def __init__(self, system, rtol=0.1, maxiter=12, rounds=4, recycle=30):
@@ -92,12 +92,11 @@ class KrylovDirection:
     def mark(self, lin, contact_data):
         """Record on lin the contact terms' tangent (CSR data (nnz,)) that its new
         factorization holds."""
-        lin.krylov_base = (lin.factorizations, contact_data[self.idx].copy(), [])
+        lin.notes["krylov_base"] = (contact_data[self.idx].copy(), [])
 
     def _base(self, lin):
         """(contact tangent, recycled [(Z, AZ)]) of lin's factorization, or None."""
-        base = getattr(lin, "krylov_base", None)
-        return base[1:] if base is not None and base[0] == lin.factorizations else None
+        return lin.notes.get("krylov_base")
 
     def _recycled(self, kept):
         """(Z, AZ) of the newest kept solves, at most self.recycle of them, or None."""
@@ -179,11 +178,11 @@ class KrylovDirection:
 
 def _plain(lin, r):
     """A^-1 (-r_f) where Newton solved it already on lin's current factorization (its
-    plain direction, solver.core.newton._direction, kept as lin.plain), else None."""
-    kept = getattr(lin, "plain", None)
-    if kept is None or kept[0] is not r or kept[1] != lin.factorizations:
+    plain direction, solver.core.newton._direction, kept in lin.notes), else None."""
+    kept = lin.notes.get("plain")
+    if kept is None or kept[0] is not r:
         return None
-    return np.asarray(kept[2]).ravel().copy()
+    return np.asarray(kept[1]).ravel().copy()
 
 
 def gmres(solve, D, c, du0, Adu0, rtol, m, recycled=None):

@@ -71,14 +71,32 @@ def single_threaded_blas():
 
 
 class _Reusable:
-    """Counting and tagging of factorizations, shared by the solvers."""
+    """Counting and tagging of factorizations, shared by the solvers, and what Newton
+    records about them:
+
+    notes           {name: value} about the current factorization, emptied by every
+                    refactor and invalidate: "plain" (r, A^-1 (-r_f)) Newton's last plain
+                    direction; "contact_status" the contact status it holds
+                    (solver.core.contact_update); "krylov_base" the contact tangent it
+                    holds and GMRES's recycled solves (solver.core.krylov)
+    smooth_tangent  (tag, CSR data, u) the part without nonsmooth terms of the last full
+                    assembly, for Newton's partial refreshes; None after invalidate
+    """
 
     factorizations = 0          # how many factorize() calls so far
     tag = None                  # what the current factorization was made for (None: none)
+    smooth_tangent = None
+
+    @property
+    def notes(self):
+        if "_notes" not in self.__dict__:
+            self._notes = {}
+        return self._notes
 
     def refactor(self, K, tag):
         """Factorize K and remember tag (what it was made for: Newton's (reduction, key))."""
         self.tag = None
+        self.notes.clear()
         self.factorize(K)
         self.factorizations += 1
         self.tag = tag
@@ -86,6 +104,8 @@ class _Reusable:
     def invalidate(self):
         """Forget the current factorization (the next Newton iteration makes a new one)."""
         self.tag = None
+        self.notes.clear()
+        self.smooth_tangent = None
 
 
 class SuperLU(_Reusable):

@@ -1,123 +1,38 @@
-r"""Newton-Raphson with a residual line search, on the free DOFs of a System.
+r"""Newton-Raphson on the free DOFs of a System, with a line search
+(solver.core.linesearch) and, in a transient's substeps, modified Newton.
 
 Convergence (all must hold at an iterate):
 
     ||r_f||_2      <= rtol * r_ref + atol        force criterion, N
     ||du||_inf     <= utol                       displacement criterion, mm
-                                                 (vacuous at the start point: a state
-                                                 already in equilibrium takes no step)
 
-where r_f is the residual on the free DOFs and r_ref = max(||f_int||_2 over all DOFs,
-||f_ext||_2, 1e-12 N) at the current iterate (the load scale, reactions included).
-The update solves K_ff du_f = -(r_f + K_fp du_p), where du_p brings the prescribed DOFs
-to their targets, so that a step's predictor is the consistent linearization.
+r_f the residual on the free DOFs, r_ref = max(||f_int||_2, ||f_ext||_2, 1e-12 N) at the
+iterate (the load scale, reactions included). The update solves K_ff du_f = -(r_f + K_fp
+du_p), du_p bringing the prescribed DOFs to their targets (the consistent linearization of
+a step's predictor). While prescribed DOFs move the step is only halved until admissible;
+otherwise the line search picks it. A NaN residual, one that grows (``diverge_factor``),
+stalls (not halved over ``stall_window`` iterations) or sits at a jump (``stuck_after``
+searches in a row cut to s <= ``stuck_fraction``) fails the call; the caller cuts back.
 
-Line search: while prescribed DOFs move (du_p != 0) the linearized residual vanishes
-along the whole step, so the step is only shortened (halved) until admissible. Otherwise,
-along du, g(s) = du . r(u + s du) (g(0) < 0 for a descent direction). Newton's step
-s = 1 is kept when the state is admissible (no det F <= 0) and |g(1)| <= 0.5 |g(0)|, or
-when g(1) has the sign of g(0) (still descending) and ||r_f|| did not grow (else s is
-halved until it did not: a contact kink ahead). Else g changed sign: its root is bracketed
-in (0, 1) and found by false position with the Illinois modification (the end that stays
-put twice has its g halved), which converges where plain secant steps cycle, as they do
-on the penalty kinks of lip/lip contact; the first s with |g(s)| <= 0.5 |g(0)| is
-taken, else the best one after max_ls + 4 evaluations. The norms of these tests are
-those of the residual on the free DOFs: the reactions on the prescribed ones are the
-load's, and near convergence their rounding would decide the test and cut good steps
-short.
+Where the caller gives a key (the substeps of solver.core.transient; static solves keep
+full Newton), four devices cut the factorizations, each an option of NewtonOptions:
 
-Secant model (``secant_search``): where the system has nonsmooth terms (contact), a step
-that fails the test at s = 1 is searched for on the model
+* ``reuse``: modified Newton. A factorization of an earlier iterate's tangent (of this
+  call or an earlier one with the same system and key) is kept while the residual falls
+  by at least ``refactor_ratio`` per iteration; a reused direction is taken at its full
+  step or dropped for a new tangent.
+* ``partial_refresh``: a refactorization within a call adds the nonsmooth terms' tangent
+  at the iterate to the smooth terms' of the key's last full assembly (within
+  ``partial_reach`` mm of it).
+* ``contact_update``: each direction is corrected for the contact status that it
+  predicts, by low-rank updates of the factorization (solver.core.contact_update).
+* ``krylov``: where a reused direction would not do, GMRES on the tangent with the
+  contact's part at the iterate, preconditioned by the factorization (solver.core.krylov),
+  before refactorizing.
 
-    r~(s) = (1 - s) r_s(0) + s r_s(1) + r_c(s),
-
-r_c the nonsmooth terms' residual evaluated at u + s du (System.nonsmooth_residual), r_s
-= r - r_c the rest, interpolated between the two ends already evaluated: exact at both
-ends, in between off by the tissue's curvature along one Newton step, where the contact's
-kinks and jumps are what the search must find. The model's step (tests as above, to
-|g| <= |g0| / 4 within 30 of its evaluations) is then evaluated whole and kept if it
-meets the test the model met, or if the model's search ended at its best step (a jump
-in the contact force, where g has no root: the exact search ends there too, after many
-more residuals) and the state is admissible; else the exact search runs. That evaluation
-is the next iterate's residual. A contact evaluation costs a small part of a residual
-(the contact's nodes only), so the model's search saves most of the residuals of an
-exact one (docs/dev-notes/fast_path.md).
-
-An iterate whose residual is NaN or that keeps growing (``diverge_factor`` above the
-larger of the first two residuals) or that stalls (not halved over ``stall_window``
-iterations, checked from iteration stall_window + 4 on) fails the step, and the caller
-cuts back. So do ``stuck_after`` line searches in a row that cut the step to s <=
-``stuck_fraction``: the iterate sits at a jump of the residual, where g changes sign with
-no root and the search ends at the jump. Such a jump: a lip slave whose nearest
-triangle switches between two equidistant faded (free) regions, each with its own face
-normal (a jump in the force at a rounding-level move); without this test each such
-iterate runs on until the stall test fails it.
-
-Factorization reuse (``reuse``; the default None: in calls with a key, i.e. the substeps
-of solver.core.transient, not in static solves, which keep full Newton): modified Newton.
-The update solves K(u_j) du_f = -r_f(u_k) with the factorization of the tangent at an
-earlier iterate u_j (j <= k, possibly of an earlier call on the same system: an earlier
-substep), which converges linearly, at a rate ||I - K(u_j)^-1 K(u_k)||, for as long as
-u_k stays close to u_j. The tangent is assembled and refactorized at u_k when
-
-    * there is no factorization for this system and key (the caller's parameters of
-      the tangent, e.g. the time step: first call, new constraints, another step
-      size, or the caller invalidated it), or
-    * convergence slowed: ||r_f(u_k)|| > refactor_ratio * ||r_f(u_{k-1})|| while the
-      force criterion does not hold yet (once it does, only the step must shrink below
-      utol, and the residual may sit at rounding), or the rate of the last iteration,
-      kept up, would not meet the force criterion within max_iter - 2 iterations, or
-    * prescribed DOFs move (du_p != 0; the right-hand side needs K_fp), or
-    * the reused direction is not one of descent (du . r >= 0 while the force criterion
-      does not hold; a positive definite K(u_j) gives du . r = -r K(u_j)^-1 r < 0).
-
-The convergence criteria and the failure tests are those above. A reused
-factorization's direction is taken at its full step or not at all: when the full step
-fails the line search's test for s = 1 (or, once the force criterion holds, when ||r||
-grew), the step is dropped (counted in NewtonReport.stale_steps) and the tangent is
-factorized at u_k for a Newton step with the line search. A stale direction that
-overshoots is a poor one to search along: the search cuts such a step to a small
-fraction over many residual evaluations, and the next iterate refactorizes anyway (a
-stale tangent lacks the stiffness of a contact that has closed since it was made). On a
-reused factorization an iterate
-costs a residual and a solve (no tangent), and the residual at the accepted step, when it
-was the last one evaluated, is the next iterate's. Once a step has been dropped in a
-call (``krylov_after_stale``, on by default), the later iterates of the call skip the
-plain reused direction (the Krylov one below, else a new factorization). A failed solve
-invalidates the factorization. ``reuse = False`` is full Newton: the tangent assembled and
-factorized at every iterate.
-
-Partial refresh (``partial_refresh``; the default None: as reuse): where the system has
-nonsmooth terms (contact), a refactorization for a key that already has one (convergence
-slowed, a stale step dropped, no descent) assembles only the nonsmooth terms' tangent at
-u_k (System.nonsmooth_tangent) and adds the rest of the key's last full assembly at u_j
-(kept on the linear solver as that assembly minus its nonsmooth part): the factorized
-matrix is K_smooth(u_j) + K_contact(u_k). Within a
-substep the tissue's tangent changes little (without contact a substep converges fast on
-its first factorization) while the contact's is what slows the iteration
-(docs/dev-notes/fast_path.md). Only within ``partial_reach`` (mm,
-the largest nodal displacement) of the full assembly's state: farther (a large jump, the
-bar of tests/test_fast_path.py) the tissue's tangent may be what went stale, and
-everything is assembled; a new key (the next substep) assembles everything too.
-
-Contact status (``contact_update``; the default None: in calls with a key, i.e. the
-substeps of solver.core.transient, as reuse): every direction, on a new or a reused
-factorization, is corrected for the contact status that the step predicts, by low-rank
-updates of the factorization (solver.core.contact_update): a slave that the step would carry
-into a master meets its contact stiffness in this direction already instead of at the
-next iterate, after a line search cut short at its kink. The residual, the line search and
-the convergence criteria are unchanged.
-
-Krylov directions (``krylov``; the default None: as contact_update): where a reused
-factorization's plain direction would not do (convergence slowed, its full step failed,
-or no descent), before refactorizing, the direction solves the tangent with the contact
-terms' part at u_k (and the status that the step predicts) by GMRES preconditioned with
-the factorization, its earlier solves recycled (solver.core.krylov); it is searched along like
-a new factorization's direction, and where GMRES does not reach its tolerance within its
-budget of solves the tangent is refactorized. It trades factorizations for solves, so
-it saves most where a factorization costs many solves (SuperLU) and least with
-single-precision PARDISO, whose factorization costs only a few (docs/benchmarks.md,
-docs/dev-notes/fast_path.md).
+Only the direction changes: the residual and the criteria are the same, so the solution
+is that of full Newton to the tolerance. Derivation and reasons: docs/method.md, section
+"Newton's fast path"; the figures behind the defaults: docs/dev-notes/fast_path.md.
 """
 
 from dataclasses import dataclass, field, replace
@@ -125,6 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from solver.core.contact_update import ContactUpdate
+from solver.core import linesearch as ls
 from solver.core.krylov import KrylovDirection
 from solver.core.linsolve import single_threaded_blas
 from solver.core.terms.base import InvertedElement
@@ -205,155 +121,11 @@ def _direction(system, r, data, dup, lin):
         rhs -= (system.pattern.matrix(data) @ full)[free]
     duf = lin.solve(rhs)
     if not np.any(dup):         # K^-1 (-r_f), GMRES's start on this factorization (krylov)
-        lin.plain = (r, lin.factorizations, duf)
+        lin.notes["plain"] = (r, duf)
     du = np.zeros(system.ndof)
     du[free] = duf
     du[prescribed] = dup
     return du
-
-
-class _Line:
-    """Residuals r(u + s du) along a direction; None where the state is not admissible.
-    Remembers the last point evaluated: the terms hold that state's outputs (contact
-    forces and gaps), so its residual can stand for the next iterate's only if it is
-    the accepted one."""
-
-    def __init__(self, system, u, du):
-        self.system, self.u, self.du = system, u, du
-        self.last = (None, None)
-
-    def __call__(self, s):
-        try:
-            r = self.system.residual(self.u + s * self.du)
-        except InvertedElement:
-            r = None
-        self.last = (s, r)
-        return r
-
-    def residual_at(self, s):
-        """r(u + s du) if s was the last point evaluated (and admissible), else None."""
-        return self.last[1] if self.last[0] == s else None
-
-
-def _admissible_fraction(line, opts):
-    """Largest s in 1, 1/2, 1/4, ... at which the state is admissible, or None."""
-    s = 1.0
-    for _ in range(opts.max_ls):
-        r = line(s)
-        if r is not None and np.all(np.isfinite(r)):
-            return s
-        s *= 0.5
-    return None
-
-
-def _g(du, r):
-    return None if r is None or not np.all(np.isfinite(r)) else float(du @ r)
-
-
-class _Secant:
-    """The residual along a line with the smooth terms' part interpolated between its
-    ends, r~(s) = (1 - s) r_s(0) + s r_s(1) + r_c(s), and only the nonsmooth terms' part
-    r_c (contact) evaluated at s (System.nonsmooth_residual): exact at s = 0 and 1; in
-    between off by the smooth part's curvature along the step (module docstring)."""
-
-    def __init__(self, line, r0, r1):
-        self.system, self.u, self.du = line.system, line.u, line.du
-        self.a = r0 - self.system.nonsmooth_residual(self.u)
-        self.b = r1 - self.system.nonsmooth_residual(self.u + self.du) - self.a
-
-    def __call__(self, s):
-        return self.a + s * self.b + self.system.nonsmooth_residual(self.u + s * self.du)
-
-
-def _line_search(line, r0, opts):
-    """Step length s along du: 1 when acceptable, else a root of g(s) = du . r(u + s du)
-    bracketed in (0, 1) by false position (Illinois), else the best s tried; searched on
-    the secant model first where the system has nonsmooth terms (opts.secant_search)."""
-    du = line.du
-    g0 = float(du @ r0)
-    n0 = _fnorm(line, r0)
-    r1 = line(1.0)
-    g1 = _g(du, r1)
-    if _full_step_stands(g0, g1, n0, _fnorm(line, r1)):
-        return 1.0
-    if opts.secant_search and g1 is not None \
-            and any(t.nonsmooth for t in line.system.terms):
-        s, test = _search(_Secant(line, r0, r1), g0, n0, r1, opts, SECANT_SLOPE, SECANT_EVALS)
-        if s is not None and _passes(test, line, line(s), g0, n0):
-            return s                    # its residual is the next iterate's (_Line.last)
-    return _search(line, g0, n0, r1, opts)[0]
-
-
-SECANT_SLOPE = 0.25     # the secant model's search aims at |g| <= this * |g0| ...
-SECANT_EVALS = 30       # ... within this many of its evaluations
-
-
-def _fnorm(line, r):
-    """||r_f||, the norm of r on the free DOFs (None where r is)."""
-    return None if r is None else float(np.linalg.norm(r[line.system.free]))
-
-
-def _passes(test, line, r, g0, n0):
-    """Whether r = r(u + s du) is admissible and meets the test by which the search took
-    s ("norm": ||r_f|| <= n0; "slope": |g(s)| <= |g0| / 2; "best": none)."""
-    g = _g(line.du, r)
-    if g is None:
-        return False
-    if test == "norm":
-        return _fnorm(line, r) <= n0
-    return test == "best" or abs(g) <= 0.5 * abs(g0)
-
-
-def _search(line, g0, n0, r1, opts, slope=0.5, evals=None):
-    """_line_search past s = 1 (r1 = r(1), failed) on line (the residual or its secant
-    model): (s, the test it met: "norm", "slope" or "best", none met), s None where no
-    admissible state was found."""
-    du = line.du
-    g1 = _g(du, r1)
-    if g1 is not None and g1 * g0 > 0:  # still descending at s = 1, the residual grew
-        s, r = 1.0, r1
-        for _ in range(opts.max_ls):    # backtrack while the residual grew (a kink)
-            if _fnorm(line, r) <= n0:
-                return s, "norm"
-            r = line(0.5 * s)
-            if _g(du, r) is None:       # keep the last admissible s
-                break
-            s *= 0.5
-        return s, "best"
-    lo, glo = 0.0, g0
-    hi, ghi = 1.0, g1
-    while ghi is None:                  # inadmissible at s = 1: halve into the admissible
-        hi *= 0.5
-        if hi < 0.5 ** opts.max_ls:
-            return None, "best"
-        ghi = _g(du, line(hi))
-        if ghi is not None and (abs(ghi) <= 0.5 * abs(g0) or ghi * g0 > 0):
-            return hi, "best"
-    best = (hi, abs(ghi))
-    side = 0
-    for _ in range(evals or opts.max_ls + 4):
-        s = hi - ghi * (hi - lo) / (ghi - glo)
-        if not lo < s < hi:
-            s = 0.5 * (lo + hi)
-        g = _g(du, line(s))
-        if g is None:                   # inadmissible inside the bracket: shrink from above
-            hi = s
-            continue
-        if abs(g) < best[1]:
-            best = (s, abs(g))
-        if abs(g) <= slope * abs(g0):
-            return s, "slope"
-        if g * g0 > 0:                  # root lies above s
-            lo, glo = s, g
-            if side == -1:
-                ghi *= 0.5              # Illinois: halve the stale end
-            side = -1
-        else:
-            hi, ghi = s, g
-            if side == 1:
-                glo *= 0.5
-            side = 1
-    return best[0], "best"
 
 
 def newton(system, u0, targets, lin, opts, key=None):
@@ -417,7 +189,7 @@ def _partial(system, lin, tag, u, reach):
     """(tangent, its nonsmooth part) at u with the smooth terms' part of the last full
     assembly for tag and the nonsmooth terms' part at u, or None where lin keeps no such
     part or that assembly was made farther than reach (mm, max-norm) from u."""
-    kept = getattr(lin, "smooth_tangent", None)
+    kept = lin.smooth_tangent
     if kept is None or kept[0][0] is not tag[0] or kept[0][1] != tag[1] \
             or np.abs(u - kept[2]).max(initial=0.0) > reach:
         return None
@@ -477,12 +249,12 @@ def _newton(system, u0, targets, lin, opts, tag):
         try:
             du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, slow,
                                      balanced, report, contact, krylov)
-            line = _Line(system, u, du)
-            if mode == "reused" and not _full_step_taken(line, r, balanced):
+            line = ls.Line(system, u, du)
+            if mode == "reused" and not ls.full_step_taken(line, r, balanced):
                 report.stale_steps += 1         # a Krylov direction or a new tangent
                 du, data, mode = _update(system, u, r, data, dup, lin, opts, tag, True,
                                          balanced, report, contact, krylov)
-                line = _Line(system, u, du)
+                line = ls.Line(system, u, du)
         except RuntimeError as exc:           # singular factorization
             report.reason = f"linear solver failed: {exc}"
             return None, None, report
@@ -492,9 +264,9 @@ def _newton(system, u0, targets, lin, opts, tag):
         if mode == "reused":
             s = 1.0
         elif np.any(dup):
-            s = _admissible_fraction(line, opts)
+            s = ls.admissible_fraction(line, opts)
         else:
-            s = _line_search(line, r, opts)
+            s = ls.line_search(line, r, opts)
         if s is None:
             report.reason = "line search found no admissible state (elements invert)"
             return None, None, report
@@ -505,46 +277,13 @@ def _newton(system, u0, targets, lin, opts, tag):
         if stuck >= opts.stuck_after:
             report.reason = (f"stuck: {stuck} line searches in a row cut the step to "
                              f"s <= {opts.stuck_fraction:g} (a jump in the residual"
-                             f"{_jump_sites(_Line(system, u, du), line.residual_at(s))})")
+                             f"{ls.jump_sites(ls.Line(system, u, du), line.residual_at(s))})")
             return None, None, report
         r = line.residual_at(s) if opts.reuse else None
         data = None
         if r is None:
             r, data = _evaluate(system, u, not opts.reuse)
     return None, None, report
-
-
-def _jump_sites(line, r0, count=3, bisections=40):
-    """Where the residual jumps along line (from its u, whose residual is r0, or None)
-    towards the full step: bisection on g(s) = du . r(u + s du) between s = 0 and 1 to a
-    bracket of width 2^-bisections, then ", largest at node i (x N), ..." for the `count`
-    nodes whose free DOFs' residual differs most across it ("" where g does not change
-    sign, or a state is not admissible). Called when Newton fails stuck, to name the
-    nodes of the jump (a contact slave switching faces, say)."""
-    free = line.system.free
-    r0 = line(0.0) if r0 is None else r0
-    r1 = line(1.0)
-    g0, g1 = _g(line.du, r0), _g(line.du, r1)
-    if g0 is None or g1 is None or g0 * g1 > 0:
-        return ""
-    lo, hi = (0.0, r0, g0), (1.0, r1, g1)
-    for _ in range(bisections):
-        mid = 0.5 * (lo[0] + hi[0])
-        r = line(mid)
-        g = _g(line.du, r)
-        if g is None:
-            return ""
-        if g * lo[2] > 0:
-            lo = (mid, r, g)
-        else:
-            hi = (mid, r, g)
-    d = np.zeros(len(r0))
-    d[free] = np.abs(hi[1][free] - lo[1][free])
-    per_node = np.sqrt((d.reshape(-1, 3) ** 2).sum(axis=1))
-    top = [int(i) for i in np.argsort(per_node)[::-1][:count] if per_node[i] > 1e-12]
-    if not top:
-        return ""
-    return ", largest at " + ", ".join(f"node {i} ({per_node[i]:.3g} N)" for i in top)
 
 
 def _slow(rn, prev, tol, it, opts):
@@ -599,19 +338,3 @@ def _update(system, u, r, data, dup, lin, opts, tag, slow, balanced, report, con
     return (contact.correct(lin, u, du) if fix else du), data, "new"
 
 
-def _full_step_stands(g0, g1, n0, n1, balanced=False):
-    """The line search's test for s = 1, with g0 = g(0), g1 = g(1) (None: inadmissible),
-    n0, n1 = ||r_f|| at 0 and 1: |g1| <= |g0| / 2, or g1 of the sign of g0 with n1 <= n0
-    (balanced: n1 <= n0 whatever the signs)."""
-    if g1 is None:
-        return False
-    kept = n1 <= n0
-    return abs(g1) <= 0.5 * abs(g0) or (kept and (balanced or g1 * g0 > 0))
-
-
-def _full_step_taken(line, r0, balanced):
-    """Whether the full step along a reused factorization's direction stands
-    (_full_step_stands at s = 1 of line)."""
-    r1 = line(1.0)
-    return _full_step_stands(float(line.du @ r0), _g(line.du, r1), _fnorm(line, r0),
-                             _fnorm(line, r1), balanced)

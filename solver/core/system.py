@@ -26,6 +26,8 @@ class System:
         self.counters = {"assemblies": 0, "residuals": 0, "partial_tangents": 0,
                          "nonsmooth_residuals": 0}
         self.term_seconds = {t.name: 0.0 for t in self.terms}     # time spent in each term
+        # what solvers build once per system and constraint set, by name (solver.core.krylov)
+        self.helpers = {}
 
     def _build_pattern(self):
         blocks, self._ids = [], []
