@@ -85,7 +85,6 @@ table, the fitted rate and the presets' figures are printed.
 import argparse
 import json
 import math
-import os
 import shutil
 import sys
 import time
@@ -98,10 +97,9 @@ if __package__ in (None, ""):                     # run as a script: the reposit
 from solver.sweep import Sweep  # noqa: E402
 from benchmarks.table import report  # noqa: E402
 from solver.face.terms.contact import PENALTY  # noqa: E402
+from solver.face.anatomy.reference import reference_face_dir  # noqa: E402
 
-REFERENCE_FACE = Path(os.environ.get(
-    "FACEFMU_REFERENCE_FACE",
-    Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
+REFERENCE_FACE = reference_face_dir()
 LEVELS = ("coarse", "medium", "paper", "fine")
 KNOBS = ("anatomy", "level", "rows", "half", "integrator", "substep_tol", "substep_rtol",
          "max_substep", "newton_rtol", "newton_utol", "lip_penalty", "formulation",

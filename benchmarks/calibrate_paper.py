@@ -31,7 +31,6 @@ commit and the date. Exit status 0 when every row is within solver.validation.pa
 import argparse
 import datetime
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -43,10 +42,10 @@ from solver.app.fidelity import fidelity_overrides
 from solver.face.muscles import PAPER_FILE, calibrated
 from solver.validation.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
 from solver.app.provenance import command, commit
+from solver.face.anatomy.reference import reference_face_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                                ROOT / ".." / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 CACHE = ROOT / "out" / "calibrate_paper_evaluations.json"
 SCENE_KEY = {"sigma_max": "sigma_max", "eps_contraction": "contraction_strain",
              "stiffening_max": "stiffening_max"}

@@ -54,7 +54,6 @@ in such a file (e.g. the run without --set).
 import argparse
 import cProfile
 import json
-import os
 import pstats
 import sys
 import time
@@ -64,10 +63,9 @@ if __package__ in (None, ""):                     # run as a script: the reposit
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.table import report  # noqa: E402
 from solver.app.gestures import gesture  # noqa: E402
+from solver.face.anatomy.reference import reference_face_dir  # noqa: E402
 
-REFERENCE_FACE = Path(os.environ.get(
-    "FACEFMU_REFERENCE_FACE",
-    Path(__file__).resolve().parents[2] / "shared" / "data" / "reference-face"))
+REFERENCE_FACE = reference_face_dir()
 DURATION, QUICK = 0.3, 0.05                       # s
 GROUPS = ("transient", "newton", "damping", "contact", "lips", "teeth")     # of --set
 CASES = {"a": dict(anatomy=str(REFERENCE_FACE), half=False),

@@ -137,42 +137,63 @@ def main(argv=None):
     ap.add_argument("--keep", help="build into and keep this folder")
     ap.add_argument("--doc", help="write a markdown report there")
     args = ap.parse_args(argv)
-    from solver.validation.stability import CONTACT_TOLERANCE
     todo = seeds(args.seeds)
     tmp = None if args.keep else tempfile.TemporaryDirectory(prefix="fmu-campaign-")
     base = Path(args.keep or tmp.name)
+    model = f"level {args.level!r}" if args.level else f"fidelity {args.fidelity!r}"
+    print(f"{len(todo)} random schedules of {args.duration} s (steps {SHORTEST * 1e3:g} to "
+          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, {model}, lip and teeth "
+          f"contact; seeds {args.seeds}", flush=True)
+    rows, failed, wall = run_campaign(todo, args.duration, "" if args.level else args.fidelity,
+                                      args.level, args.batch, args.jobs, base, log=print)
+    print(f"\n{len(todo) - len(failed)} of {len(todo)} schedules passed in {wall:.0f} s"
+          + (f"; failed seeds: {' '.join(map(str, sorted(failed)))}" if failed else ""))
+    for s, p in sorted(failed.items()):
+        print(f"  seed {s}: {p}  (python benchmarks/fmu_campaign.py --seeds {s} "
+              f"--duration {args.duration} "
+              + (f"--level {args.level})" if args.level else f"--fidelity {args.fidelity!r})"))
+    if args.doc:
+        from solver.validation.stability import CONTACT_TOLERANCE
+        write_doc(args, argv, todo, rows, failed, wall, CONTACT_TOLERANCE)
+    if tmp:
+        tmp.cleanup()
+    return 1 if failed else 0
+
+
+def run_campaign(todo, duration, fidelity, level, batch, jobs, base, log=None):
+    """Run the seeds todo (schedules of `duration` s) through FaceFMU built into base, at
+    fidelity ("" with level: that mesh level at the scene's tolerances), in fmpy processes of
+    `batch` seeds, `jobs` at a time. Returns (rows [(seed, steps, cutbacks, lip and teeth
+    penetration mm, "pass" or the problem)], failed {seed: problem}, wall s); log: a
+    callable for each seed's line."""
+    from solver.validation.stability import CONTACT_TOLERANCE
+    base = Path(base)
     base.mkdir(parents=True, exist_ok=True)
     subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--dest", str(base)],
                    check=True, stdout=subprocess.DEVNULL)
     fmu = base / "FaceFMU.fmu"
-    fidelity = "" if args.level else args.fidelity
-    model = f"level {args.level!r}" if args.level else f"fidelity {args.fidelity!r}"
-    probe = probe_for(fidelity, args.level)
-    print(f"{len(todo)} random schedules of {args.duration} s (steps {SHORTEST * 1e3:g} to "
-          f"{LONGEST * 1e3:g} ms, all ten muscles), default scene, {model}, lip and teeth "
-          f"contact; seeds {args.seeds}", flush=True)
+    probe = probe_for(fidelity, level)
     failed, rows, t0 = {}, [], time.perf_counter()
-    def run_batch(i):
-        batch = todo[i:i + args.batch]
-        jobs = [{"seed": s, "steps": schedule(s, args.duration)} for s in batch]
-        jobs_path = base / f"jobs{i}.json"
-        jobs_path.write_text(json.dumps(jobs))
-        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") \
-            if args.jobs > 1 else None                 # one core per process
-        proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), fidelity,
-                               args.level or "", str(jobs_path), str(base)],
-                              capture_output=True, text=True,
-                              cwd=base, env=env)
-        return jobs, proc
 
-    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-        for jobs, proc in pool.map(run_batch, range(0, len(todo), args.batch)):
+    def run_batch(i):
+        part = [{"seed": s, "steps": schedule(s, duration)} for s in todo[i:i + batch]]
+        jobs_path = base / f"jobs{i}.json"
+        jobs_path.write_text(json.dumps(part))
+        env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") \
+            if jobs > 1 else None                      # one core per process
+        proc = subprocess.run([sys.executable, "-c", CHILD, str(fmu), fidelity,
+                               level or "", str(jobs_path), str(base)],
+                              capture_output=True, text=True, cwd=base, env=env)
+        return part, proc
+
+    with ThreadPoolExecutor(max(1, jobs)) as pool:
+        for part, proc in pool.map(run_batch, range(0, len(todo), batch)):
             done = {}
             for line in proc.stdout.splitlines():
                 if line.startswith("RESULT "):
                     r = json.loads(line[7:])
                     done[r["seed"]] = r
-            for job in jobs:
+            for job in part:
                 s = job["seed"]
                 r = done.get(s)
                 if r is None:
@@ -187,24 +208,13 @@ def main(argv=None):
                     failed[s] = problem
                 rows.append((s, len(job["steps"]), r["cutbacks"], lips, teeth,
                              problem or "pass"))
-                print(f"seed {s:4d}: {len(job['steps']):4d} steps, {r['cutbacks']:3d} "
-                      f"cutbacks, lips {lips:.3f} teeth {teeth:.3f} mm: "
-                      f"{problem or 'pass'}", flush=True)
-            if proc.returncode != 0 and all(job["seed"] in done for job in jobs):
-                for job in jobs:
+                if log:
+                    log(f"seed {s:4d}: {len(job['steps']):4d} steps, {r['cutbacks']:3d} "
+                        f"cutbacks, lips {lips:.3f} teeth {teeth:.3f} mm: {problem or 'pass'}")
+            if proc.returncode != 0 and all(job["seed"] in done for job in part):
+                for job in part:
                     failed.setdefault(job["seed"], f"the process exited with {proc.returncode}")
-    wall = time.perf_counter() - t0
-    print(f"\n{len(todo) - len(failed)} of {len(todo)} schedules passed in {wall:.0f} s"
-          + (f"; failed seeds: {' '.join(map(str, sorted(failed)))}" if failed else ""))
-    for s, p in sorted(failed.items()):
-        print(f"  seed {s}: {p}  (python benchmarks/fmu_campaign.py --seeds {s} "
-              f"--duration {args.duration} "
-              + (f"--level {args.level})" if args.level else f"--fidelity {args.fidelity!r})"))
-    if args.doc:
-        write_doc(args, argv, todo, rows, failed, wall, CONTACT_TOLERANCE)
-    if tmp:
-        tmp.cleanup()
-    return 1 if failed else 0
+    return rows, failed, time.perf_counter() - t0
 
 
 def write_doc(args, argv, todo, rows, failed, wall, tolerance):

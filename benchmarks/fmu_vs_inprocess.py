@@ -24,9 +24,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+from solver.face.anatomy.reference import reference_face_dir
+
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                                ROOT.parent / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 OUT = ("lip_aperture", "lip_protrusion")
 
 CHILD = r"""

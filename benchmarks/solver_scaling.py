@@ -2,7 +2,8 @@
 
 Shell-like structured blocks (n x n x 3 bricks, like the face's three tissue layers),
 from about 1k to 60k DOF, and the reference face's own tangent (all muscles, OOP at 0.5),
-where ../shared/data/reference-face is present. Prints a table; with --csv PATH also writes it.
+where the reference face is present ($FACEFMU_REFERENCE_FACE or
+../shared/data/reference-face). Prints a table; with --csv PATH also writes it.
 
     python benchmarks/solver_scaling.py [--sizes 10 20 40 70] [--csv out.csv] [--md FILE]
 
@@ -76,9 +77,9 @@ def case(n, repeat):
 
 def face_case(repeat):
     """Factorize + solve the reference face's tangent (all muscles, OOP at 0.5)."""
-    from pathlib import Path
     from solver.face.anatomy.load import load_anatomy
-    folder = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference-face"
+    from solver.face.anatomy.reference import reference_face_dir
+    folder = reference_face_dir()
     if not folder.is_dir():
         print(f"(no reference face at {folder}: face case skipped)")
         return None

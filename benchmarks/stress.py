@@ -48,6 +48,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from solver.core.numba_config import configure_numba  # noqa: E402
+from solver.face.anatomy.reference import reference_face_dir  # noqa: E402
 
 configure_numba()                          # the FMU's numba settings, in process too
 from solver.validation import stability as S  # noqa: E402
@@ -276,7 +277,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error(f"--jobs {args.jobs}: at least 1")
-    reference = str(ROOT.parent / "shared" / "data" / "reference-face")
+    reference = str(reference_face_dir())
     if args.anatomy == "reference":
         args.anatomy = reference
     configs = [(args.anatomy, args.level, args.fidelity)]

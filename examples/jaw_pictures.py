@@ -12,16 +12,15 @@ the lip aperture at rest and open.
 
 import argparse
 import math
-import os
 from pathlib import Path
 
 from solver.face.jaw import BONWILL_MM
 from solver.app.plot import plot_anatomy
 from solver.app.simulation import Simulation
+from solver.face.anatomy.reference import reference_face_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                                ROOT.parent / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 
 
 def teeth(sim):

@@ -21,7 +21,6 @@ about 10 mm for /u/, 7 mm for /o/, under 1 mm for /a/ and /i/; aperture about 3.
 """
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -31,10 +30,10 @@ from solver.app.plot import plot_anatomy
 from solver.app.scene import parse_scene, Scene
 from solver.app.simulation import Simulation
 from solver.app.provenance import commit
+from solver.face.anatomy.reference import reference_face_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                            ROOT / ".." / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 CASES = {"RIS": {"RIS": 1.0}, "BUC": {"BUC": 1.0}, "OOP": {"OOP": 1.0},
          "OOP + BUC": {"OOP": 1.0, "BUC": 1.0}}
 # the motor-control example's synergies (examples/motor_control/lipmc_inverse.py), and its

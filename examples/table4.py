@@ -15,7 +15,6 @@ from the paper the mesh's?). Writes OUT/table4.md and out/table4.csv.
 
 import argparse
 import csv
-import os
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +24,10 @@ from solver.face.muscles import CALIBRATIONS, calibrated, paper_calibration
 from solver.validation.paper import (TABLE4_AVG_RATE, TABLE4_TOLERANCE, paper_strain,
                                      row_errors, table4_run)
 from solver.app.provenance import command, stamp
+from solver.face.anatomy.reference import reference_face_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                                ROOT / ".." / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 
 
 def table(label, calibration, rows, wall):

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from solver.core.numba_config import configure_numba
+from solver.face.anatomy.reference import reference_face as _reference_face
+from solver.face.anatomy.reference import reference_face_dir
 
 configure_numba()                          # as the FMU slave and the CLI do
 
@@ -46,6 +48,21 @@ def pytest_collection_finish(session):
                                                           None) \
             and len(session.items) > WARM_FROM:
         _warm(config)
+
+
+# the published reference face is never in the repository: its tests skip where it is absent
+needs_reference_face = pytest.mark.skipif(
+    _reference_face() is None, reason=f"reference face data not found in {reference_face_dir()} "
+    "(set FACEFMU_REFERENCE_FACE to its folder)")
+
+
+@pytest.fixture(scope="session")
+def reference_face():
+    """The reference face's folder (solver.face.anatomy.reference); skips where absent."""
+    folder = _reference_face()
+    if folder is None:
+        pytest.skip(f"reference face data not found in {reference_face_dir()}")
+    return folder
 
 
 @pytest.fixture

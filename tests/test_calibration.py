@@ -1,8 +1,6 @@
 """The muscle calibrations: the scene keys, the identification's record, and the paper's
 Table 4 reproduced by the `paper` calibration on the reference face."""
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +11,6 @@ from solver.face.muscles import (CALIBRATIONS, DEFAULT_CALIBRATION, MuscleProper
 from solver.validation.paper import TABLE4, TABLE4_TOLERANCE, row_errors, table4_run
 from solver.app.scene import SceneError, parse_scene
 
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
-                                / ".." / "shared" / "data" / "reference-face"))
 
 
 def test_the_calibrations_set_the_cable_and_stiffening_constants():
@@ -58,24 +54,22 @@ def test_the_identification_record_is_complete_and_within_the_tolerance():
     assert rec["reproduces_table4"] and np.abs(err).max() <= TABLE4_TOLERANCE
 
 
-def _table4_on_the_reference_face(until):
-    if not (REFERENCE / "newface.node").is_file():
-        pytest.skip(f"reference face not found at {REFERENCE}")
+def _table4_on_the_reference_face(folder, until):
     from solver.face.anatomy.load import load_anatomy
-    rows, _ = table4_run(load_anatomy(REFERENCE, half=True), until=until, calibration="paper")
+    rows, _ = table4_run(load_anatomy(folder, half=True), until=until, calibration="paper")
     err = row_errors(rows)
     assert len(err) == sum(t <= until + 1e-9 for t, _ in TABLE4)
     assert np.abs(err).max() <= TABLE4_TOLERANCE, err
 
 
-def test_paper_calibration_reproduces_table4_to_0_03_s_on_the_reference_face():
+def test_paper_calibration_reproduces_table4_to_0_03_s_on_the_reference_face(reference_face):
     """The scene table4_oop under the `paper` calibration, run here to 0.03 s: the
     paper's rows there (0.02 and 0.03 s) within 0.03 of ours (the whole table: the slow
     test below, and python examples/table4.py)."""
-    _table4_on_the_reference_face(0.03)
+    _table4_on_the_reference_face(reference_face, 0.03)
 
 
 @pytest.mark.slow
-def test_paper_calibration_reproduces_table4_on_the_reference_face():
+def test_paper_calibration_reproduces_table4_on_the_reference_face(reference_face):
     """The whole 0.1 s: every row of the paper's Table 4 within 0.03 of ours."""
-    _table4_on_the_reference_face(0.1)
+    _table4_on_the_reference_face(reference_face, 0.1)

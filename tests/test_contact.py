@@ -2,8 +2,6 @@
 blocks pressed together, sliding on an incline, the lips on the teeth of the reference face.
 """
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,11 +14,10 @@ from solver.core.meshgen import box
 from solver.core.terms.base import State
 from solver.face.terms.contact import (PENALTY, LipContact, RigidContact,
                                        build_contact_terms, nodes_near, tributary_areas)
+from solver.face.anatomy.reference import reference_face_dir
 
 STIFF = solver.MooneyRivlin(c10=0.05, c20=0.0, d=0.04)      # 20 x the face's tissue, MPa
-DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                           Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-                           / "reference-face"))
+DATA = reference_face_dir()
 
 
 def grid_surface(n, size, height=lambda x, y: 0.0 * x, rotation=np.eye(3)):
@@ -744,11 +741,9 @@ def test_generic_face_rests_without_contact_force(level):
 # -------------------------------------------------------------- reference face
 
 @pytest.fixture(scope="module")
-def face_anatomy():
-    if not (DATA / "newface.node").is_file():
-        pytest.skip(f"reference face data not found in {DATA}")
+def face_anatomy(reference_face):
     from solver.face.anatomy.ansys import load_ansys_face
-    return load_ansys_face(str(DATA))
+    return load_ansys_face(str(reference_face))
 
 
 def _teeth_terms(anatomy, distance=3.0):

@@ -5,7 +5,6 @@ or FACEFMU_REFERENCE_FACE, and skip when it is absent; the generic-face case ski
 solver.face.anatomy.generic does not exist.
 """
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -22,12 +21,11 @@ from solver.app.io.export import SIDES, vtk_cells
 from solver.core.mesh import Mesh
 from solver.core.meshgen import box
 from solver.app.plot import plot_anatomy
+from solver.face.anatomy.reference import reference_face_dir
+from conftest import needs_reference_face
 
-DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                           Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-                           / "reference-face"))
-needs_reference = pytest.mark.skipif(not (DATA / "newface.node").is_file(),
-                                     reason=f"reference face data not found in {DATA}")
+DATA = reference_face_dir()
+needs_reference = needs_reference_face
 
 
 def _block_anatomy():

@@ -1,15 +1,13 @@
 """Static face responses on both anatomies: half face against full face, muscle effects."""
 
-import os
-from pathlib import Path
 
 import pytest
 
 from solver.face.anatomy.load import load_anatomy
 from solver.face.face_model import FaceModel
+from solver.face.anatomy.reference import reference_face_dir
 
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
-                                / ".." / "shared" / "data" / "reference-face"))
+REFERENCE = reference_face_dir()
 # the reference face's case is slow (out of CI, whose run has the generic face's)
 ANATOMIES = ["generic", pytest.param("reference", marks=[pytest.mark.slow, pytest.mark.skipif(
     not REFERENCE.is_dir(), reason=f"no reference face at {REFERENCE}")])]

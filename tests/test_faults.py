@@ -23,13 +23,12 @@ from solver.face.anatomy.ansys import _read_elements, _read_nodes, load_ansys_fa
 from solver.core.errors import FaceFMUError, MeshError, MeshFileError
 from solver.app.scene import Scene, SceneError, load_scene
 from solver.app.simulation import BUILTIN_DIR, Simulation
+from solver.face.anatomy.reference import reference_face_dir
+from conftest import needs_reference_face
 from conftest import SCRIPTS
 
-DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                           Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-                           / "reference-face"))
-needs_data = pytest.mark.skipif(not (DATA / "newface.node").is_file(),
-                                reason=f"reference face data not found in {DATA}")
+DATA = reference_face_dir()
+needs_data = needs_reference_face
 
 
 # ------------------------------------------------------------------------ scene files

@@ -9,8 +9,6 @@ the terms the jaw moves against finite differences; refusals leave the state as 
 
 import copy
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,11 +18,10 @@ from solver.core.errors import ParameterError
 from solver.face.jaw import BALKWILL_DEG, BONWILL_MM, JAW_RANGES
 from solver.app.simulation import Simulation
 from solver.validation.stability import CONTACT_TOLERANCE, Probe
+from solver.face.anatomy.reference import reference_face
 from test_contact import Runner, fd_derivatives, fd_errors
 
-_DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
-                            / ".." / "shared" / "data" / "reference-face"))
-REFERENCE_FACE = _DATA if (_DATA / "newface.node").is_file() else None
+REFERENCE_FACE = reference_face()
 
 
 def _rigid(x, centre, theta_deg, p):

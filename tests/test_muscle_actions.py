@@ -5,8 +5,6 @@ Static equilibria at a = 1 with the paper's whole-brick stiffening rule and lip/
 transient test at the end: static Newton with pressed lips is not robust yet).
 """
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +13,6 @@ from solver.face.anatomy.load import load_anatomy
 from solver.app.scene import parse_scene
 from solver.app.simulation import Simulation
 
-REFERENCE = Path(os.environ.get("FACEFMU_REFERENCE_FACE", Path(__file__).resolve().parents[1]
-                               / ".." / "shared" / "data" / "reference-face"))
 
 CASES = {"RIS": {"RIS": 1.0}, "OOP": {"OOP": 1.0}, "BUC/2": {"BUC": 0.5}, "BUC": {"BUC": 1.0},
          "OOP+BUC": {"OOP": 1.0, "BUC": 1.0}}
@@ -39,9 +35,7 @@ def solved(request):
     if request.param == "generic":
         anatomy = load_anatomy("generic", "coarse", True)
     else:
-        if not (REFERENCE / "newface.node").is_file():
-            pytest.skip(f"reference face not found at {REFERENCE}")
-        anatomy = load_anatomy(REFERENCE, half=True)
+        anatomy = load_anatomy(request.getfixturevalue("reference_face"), half=True)
     return anatomy, {name: _static(anatomy, act) for name, act in CASES.items()}
 
 
@@ -159,16 +153,14 @@ def test_pressed_lips_close_without_interpenetrating():
 
 
 @pytest.mark.slow
-def test_figures_8_to_10_under_the_paper_calibration_in_transient_analysis():
+def test_figures_8_to_10_under_the_paper_calibration_in_transient_analysis(reference_face):
     """The paper's Figures 8 to 10 under the `paper` calibration, on the reference face,
     as the paper ran them: transient, each activation ramped to 1 over 0.1 s and held to
     0.2 s, lip and teeth contact (static equilibria of OOP, BUC and OOP + BUC at these
     forces do not converge). RIS widens the mouth; OOP protrudes the lips and narrows the aperture;
     OOP + BUC protrudes less than OOP alone and closes the lips; BUC presses the cheek on
     the teeth, harder at a = 1 than at 0.5."""
-    if not (REFERENCE / "newface.node").is_file():
-        pytest.skip(f"reference face not found at {REFERENCE}")
-    anatomy = load_anatomy(REFERENCE, half=True)
+    anatomy = load_anatomy(reference_face, half=True)
     res = {}
     for name, act in CASES.items():
         scene = parse_scene({"scene": {"analysis": "transient"},

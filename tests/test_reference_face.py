@@ -5,9 +5,7 @@ project root) or wherever FACEFMU_REFERENCE_FACE points; the tests skip when it 
 Tests that corrupt files work on copies in tmp_path.
 """
 
-import os
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,10 +14,9 @@ from solver.face.anatomy import LANDMARK_NAMES, MUSCLE_NAMES
 from solver.face.anatomy.ansys import _orient, load_ansys_face
 from solver.core.element import reference_geometry
 from solver.core.errors import FaceFMUError, MeshFileError
+from solver.face.anatomy.reference import reference_face_dir
 
-DATA = Path(os.environ.get("FACEFMU_REFERENCE_FACE",
-                           Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-                           / "reference-face"))
+DATA = reference_face_dir()
 if not (DATA / "newface.node").is_file():
     pytest.skip(f"reference face data not found in {DATA} (set FACEFMU_REFERENCE_FACE to "
                 "its folder)", allow_module_level=True)
