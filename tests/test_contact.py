@@ -191,23 +191,23 @@ def test_subdivided_faces_share_their_edge_midpoints():
     """Two quads and a triangle (a degenerate quad) sharing edges, at divisions 2: one
     midpoint vertex per shared edge, so that the only free edges are the outline's (16 +
     16 + 4 triangles; 9 distinct edges, 2 of them shared: an outline of 7, halved)."""
-    from solver.face.terms.contact import _Topology, centred_triangles
+    from solver.face.terms.contact.surfaces import Topology, centred_triangles
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [2, 6, 5, 5]])
     tris, vn, vw, _, _ = centred_triangles(faces, 7, 2)
     assert len(tris) == 36
     mids = [v for v in range(len(vn)) if (vw[v] == [0.5, 0.5, 0.0, 0.0]).all()]
     assert len(mids) == 9
-    topo = _Topology(tris, 7 + len(vn))
+    topo = Topology(tris, 7 + len(vn))
     assert topo.free_edge.sum() == 2 * 7
 
 
 def test_partial_normal_updates_equal_the_whole_one(rng):
-    """_Normals.changed(moved): after a motion of the vertices `moved` only, its update
+    """Normals.changed(moved): after a motion of the vertices `moved` only, its update
     leaves every row (face, edge, vertex normals) as the whole update does, bit for bit;
-    _Normals.read(tris): after a motion of every vertex, the rows of those triangles (their
+    Normals.read(tris): after a motion of every vertex, the rows of those triangles (their
     faces, edges and vertices) are the whole update's. On a curved sheet with a mirror
     plane (x = -2: a half model's), whose rows are renormalised too."""
-    from solver.face.terms.contact import _Normals
+    from solver.face.terms.contact.surfaces import Normals
     s = grid_surface(8, 4.0, height=lambda x, y: 0.2 * x * x - 0.1 * x * y)
     tris, x0 = np.asarray(s.triangles), np.asarray(s.vertices, dtype=float)
     x0 = x0 - [x0[:, 0].min(), 0.0, 0.0]                 # the plane x = 0 on an edge
@@ -216,8 +216,8 @@ def test_partial_normal_updates_equal_the_whole_one(rng):
     x1 = x0.copy()
     x1[moved] += 0.3 * rng.standard_normal((moved.sum(), 3))
     x1[mirror, 0] = 0.0                                    # mirror vertices stay on it
-    whole = _Normals(tris, len(x0), mirror).update(x1)
-    part = _Normals(tris, len(x0), mirror).update(x0)
+    whole = Normals(tris, len(x0), mirror).update(x1)
+    part = Normals(tris, len(x0), mirror).update(x0)
     assert not np.array_equal(part.fn, whole.fn)
     rows = part.changed(moved)
     assert 0 < len(rows.rows[0]) < len(tris)               # a part, not all of it

@@ -99,8 +99,8 @@ def test_the_mandible_and_the_lower_teeth_follow_the_rigid_motion(pose):
                   ).max() < 1e-12
     assert np.array_equal(teeth.vertices[~moving], teeth.rest_vertices[~moving])
     # the normals move_to refreshed (those the motion changes) are a whole update's
-    from solver.face.terms.contact import _Normals
-    whole = _Normals(teeth.tris, len(teeth.vertices)).update(teeth.vertices)
+    from solver.face.terms.contact.surfaces import Normals
+    whole = Normals(teeth.tris, len(teeth.vertices)).update(teeth.vertices)
     for a, b in zip(teeth.normals.args()[:3], whole.args()[:3]):
         assert np.array_equal(a, b)
 

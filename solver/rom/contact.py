@@ -15,7 +15,7 @@ needs only their slave (and, for lip contact, master) nodes. Per term an adapter
   the distance alone.
 * LipContact (two passes, candidate pairs fixed at rest by the term): the term's kernel
   (surface_contact) on the positions of the contact nodes, the master surface's normals
-  refreshed on the rows the kernel reads (_Normals.read); private copies of the pair work
+  refreshed on the rows the kernel reads (Normals.read); private copies of the pair work
   arrays.
 * anything else: the term's assemble() on a full-size displacement filled at the
   contact nodes only (the generic, slower path; solver.rom.reduced does the same).

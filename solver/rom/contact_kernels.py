@@ -136,7 +136,7 @@ def short_lists(x, cen, rad, xv, tris, delta, depth, ptr, out, dist):
 def mirror_normals(en, me_t, me_j, vn, mv):
     """On a half model's mirror edges (me_t, me_j) and vertices mv: the pseudo-normals of
     the surface with its mirror image, x component zeroed and renormalised (as
-    solver.face.terms.contact's _Normals.update does after surface_normals)."""
+    solver.face.terms.contact.surfaces.Normals.update does after surface_normals)."""
     for k in range(me_t.shape[0]):
         n = en[me_t[k], me_j[k]]
         n[0] = 0.0
