@@ -16,7 +16,8 @@ depth get p = nan.
 import numpy as np
 from numba import njit
 
-from solver.core.kernels.contact import _pair_free, locate
+from solver.core.kernels.contact import locate
+from solver.core.kernels.contact.assembly import _pair_free
 
 
 @njit(cache=True)
