@@ -43,7 +43,8 @@ configure_numba()              # before any kernel runs in this process (solver.
 
 from solver.face.anatomy.base import MUSCLE_FULL_NAMES, MUSCLE_NAMES  # noqa: E402
 from solver.app.fidelity import FIDELITIES, REDUCED, fidelity_overrides
-from solver.face.jaw import JAW_INPUTS, JAW_RANGES, JAW_UNITS
+from solver.core.errors import ParameterError
+from solver.face.jaw import JAW_INPUTS
 from facefmu.model_description import extend_model_description
 
 OUTPUT_DESCRIPTIONS = {
@@ -229,18 +230,6 @@ class FaceFMU(Fmi2Slave):
         if abs(current_time - self.time) > 1e-9 * max(1.0, abs(self.time)):
             return (f"doStep starts at t = {current_time!r} s but the FMU is at "
                     f"t = {self.time!r} s")
-        for m in MUSCLE_NAMES:
-            v = getattr(self, m)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 1.0):
-                return f"input {m} = {v!r} is outside [0, 1]"
-        for name in JAW_INPUTS:
-            v = getattr(self, name)
-            lo, hi = JAW_RANGES[name]
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
-                return f"input {name} = {v!r} {JAW_UNITS[name]} is outside [{lo:g}, {hi:g}]"
-        if self.sim.face.jaw is None and (self.jaw_opening or self.jaw_protrusion):
-            return (f"inputs jaw_opening, jaw_protrusion must stay 0: the anatomy "
-                    f"{self.sim.anatomy.name!r} has no jaw")
         return None
 
     def do_step(self, current_time, step_size):
@@ -252,14 +241,16 @@ class FaceFMU(Fmi2Slave):
                 self.log(f"parameter {p} changed to {getattr(self, p)!r} after "
                          f"initialization: ignored (still {self._used[p]!r})", Fmi2Status.warning)
                 setattr(self, p, self._used[p])
-        values = {m: float(getattr(self, m)) for m in self.sim.face.muscles}
-        idle = [m for m in MUSCLE_NAMES if m not in self.sim.face.muscles and getattr(self, m)]
+        try:                        # the inputs, checked by the simulation (its API)
+            idle = self.sim.set_inputs({m: getattr(self, m) for m in MUSCLE_NAMES},
+                                       (self.jaw_opening, self.jaw_protrusion),
+                                       undriven="ignore")
+        except ParameterError as exc:
+            return self._refuse(f"step refused: {exc}; the state stays at "
+                                f"t = {self.time} s")
         if idle:
             self.log(f"inputs {', '.join(idle)} drive muscles that the scene "
                      f"'{self.scene}' does not build: ignored", Fmi2Status.warning)
-        self.sim.set_activations(values)
-        if self.sim.face.jaw is not None:
-            self.sim.set_jaw(float(self.jaw_opening), float(self.jaw_protrusion))
         stats = self.sim.step(self.time + step_size)
         if not stats.converged:
             return self._refuse(f"step from t = {self.time} s refused: the solver did not "

@@ -5,7 +5,7 @@ import pytest
 
 import solver
 from solver.face.activation import Activation
-from solver.face.anatomy.base import Anatomy, Fibre
+from solver.face.anatomy.base import MUSCLE_NAMES, Anatomy, Fibre
 from solver.core.meshgen import box
 from solver.face.muscles import MuscleProperties
 from solver.core.system import System
@@ -79,17 +79,60 @@ def test_embedded_points_follow_their_host_bricks():
     assert np.allclose(x, expect, atol=1e-12)
 
 
-def test_activation_refuses_bad_values_by_name():
-    act = Activation()
+def test_inputs_are_checked_once_at_the_api_and_refused_by_name():
+    """Simulation.set_inputs is the one place inputs are checked: a bad activation or jaw
+    value raises ParameterError naming it, and nothing changes, not even the inputs that
+    were good; an undriven muscle must stay at 0, or is left out with undriven "ignore"."""
+    from solver.app.simulation import Simulation
+    sim = Simulation("default", driven=("OOP", "RIS"))
     for bad in (float("nan"), float("inf"), -0.1, 1.5, "x"):
         with pytest.raises(solver.ParameterError, match="OOP"):
-            act.set({"OOP": bad})
+            sim.set_activations({"OOP": bad})
     with pytest.raises(solver.ParameterError, match="XYZ"):
-        act.set({"XYZ": 0.5})
-    act.set({"RIS": 0.2})
+        sim.set_activations({"XYZ": 0.5})
+    sim.set_activations({"RIS": 0.2})
     with pytest.raises(solver.ParameterError):
-        act.set({"RIS": 0.9, "OOP": float("nan")})     # all checked before any is set
-    assert act.target[3] == 0.2
+        sim.set_activations({"RIS": 0.9, "OOP": float("nan")})     # all checked before any is set
+    with pytest.raises(solver.ParameterError, match="jaw_opening = 25"):
+        sim.set_inputs({"RIS": 0.9}, jaw=(25.0, 0.0))               # the jaw's too
+    act = sim.face.activation
+    assert act.target[MUSCLE_NAMES.index("RIS")] == 0.2 and sim.face.jaw.target[0] == 0.0
+    with pytest.raises(solver.ParameterError, match="BUC is not driven"):
+        sim.set_activations({"BUC": 0.5})
+    assert sim.set_inputs({"BUC": 0.5, "OOP": 0.1}, undriven="ignore") == ["BUC"]
+    with pytest.raises(solver.ParameterError, match="BUC"):
+        sim.set_inputs({"BUC": float("nan")}, undriven="ignore")    # checked even if ignored
+    assert act.target[MUSCLE_NAMES.index("OOP")] == 0.1
+    assert act.target[MUSCLE_NAMES.index("BUC")] == 0.0
+
+
+def test_a_step_commits_its_inputs_and_a_failed_one_rolls_them_back(monkeypatch):
+    """Only the step commits: targets become the converged state after a step that
+    converged, and go back to it after one that failed; no term commits them midway (here
+    the held activation's substeps converge before a later one fails)."""
+    import solver.core.transient as T
+    from solver.app.simulation import Simulation
+    from solver.core.newton import NewtonReport
+    sim = Simulation("default", driven=("OOP",))
+    oop = MUSCLE_NAMES.index("OOP")
+    sim.set_activations({"OOP": 0.4})
+    act = sim.face.activation
+    assert act.start[oop] == 0.0                                # set: a target only
+    assert sim.step(0.005).converged
+    assert act.start[oop] == 0.4
+    starts, real = [], T.newton
+
+    def fails_third(*args, **kwargs):
+        starts.append(act.start[oop])
+        if len(starts) >= 3:
+            return None, None, NewtonReport(False, 0, reason="made to fail")
+        return real(*args, **kwargs)
+    monkeypatch.setattr(T, "newton", fails_third)
+    sim.integrator.hold, sim.integrator.max_cutbacks = "step", 0
+    sim.set_activations({"OOP": 1.0})
+    assert not sim.step(0.05).converged
+    assert starts == [0.4] * len(starts) and len(starts) >= 3
+    assert act.start[oop] == 0.4 == act.target[oop]
 
 
 def test_stiffening_neighbourhood_and_factor():

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.face.activation import check_activation
 from solver.face.anatomy.base import MUSCLE_NAMES
 from solver.face.anatomy.load import load_anatomy
 from solver.core.errors import ParameterError
@@ -117,13 +118,42 @@ class Simulation:
     def set_activations(self, values):
         """Target activations for the next step: dict muscle -> a in [0, 1] (the others
         keep theirs); a bad value raises ParameterError naming it, nothing changed."""
-        self.face.set_activations(values)
+        self.set_inputs(activations=values)
 
     def set_jaw(self, opening=None, protrusion=None):
         """Target jaw opening (deg, about the TMJ axis) and protrusion (mm, along the
         occlusal plane) for the next step (solver.face.jaw); None keeps one. Values outside
         solver.face.jaw.JAW_RANGES raise ParameterError and change nothing."""
-        self.face.set_jaw(opening, protrusion)
+        self.set_inputs(jaw=(opening, protrusion))
+
+    def set_inputs(self, activations=None, jaw=None, undriven="error"):
+        """The next step's targets, all checked before any changes (the one place where
+        inputs are validated): activations, dict muscle -> a in [0, 1]; jaw, (opening deg,
+        protrusion mm) with None keeping one. A muscle the scene does not drive must stay
+        at 0 (undriven "error"), or is checked and then left out ("ignore"). Raises
+        ParameterError naming the input and its value; returns the undriven muscles with a
+        nonzero value that were left out."""
+        face, values, pose, idle = self.face, {}, None, []
+        for m, v in dict(activations or {}).items():
+            if m in MUSCLE_NAMES and m not in face.muscles and v != 0 and undriven == "error":
+                raise ParameterError(f"muscle {m} is not driven in this model "
+                                     f"(driven: {', '.join(face.muscles) or 'none'})")
+            v = check_activation(m, v)
+            if m in face.muscles:
+                values[m] = v
+            elif v != 0:
+                idle.append(m)
+        if jaw is not None:
+            opening, protrusion = jaw
+            if face.jaw is not None:
+                pose = face.jaw.pose(opening, protrusion)
+            elif opening or protrusion:
+                raise ParameterError(f"anatomy {self.anatomy.name!r} has no jaw (no "
+                                     "'fixed_mandible' node set or teeth surfaces)")
+        face.set_activations(values)
+        if pose is not None:
+            face.set_jaw(pose)
+        return idle
 
     @property
     def jaw(self):
@@ -135,13 +165,8 @@ class Simulation:
         """Advance to t_end (transient) or solve the equilibrium (static); StepStats."""
         if self.integrator is not None:
             self.integrator.t = self.t
-            start = self.face.activation.start.copy()
             stats = self.integrator.advance(t_end)
-            if not stats.converged:
-                # a substep at the full activations (hold "step") committed them before
-                # a later one failed: the state goes back to the call's start
-                self.face.activation.start = start
-            self.face.end_step(stats.converged)
+            self.face.end_step(stats.converged)         # inputs committed or rolled back
         else:
             res = self.face.solve_static()
             rel = res.relaxation
@@ -253,9 +278,7 @@ class Simulation:
         picked at u)."""
         self.t = float(state["t"])
         self.face.model.u = np.array(state["u"], dtype=float).reshape(-1, 3)
-        self.face.activation.start = np.array(state["activation"], dtype=float)
-        self.face.activation.target = self.face.activation.start.copy()
-        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
+        self.face.restore_inputs(state["activation"], state.get("jaw", (0.0, 0.0)))
         self.face.model.system().restore(self.face.model.u.ravel(),   # contact candidates
                                          state.get("pattern"))
         if self.integrator is not None:

@@ -22,18 +22,19 @@ def check_activation(name, value):
 
 
 class Activation:
-    """start, target (10,) in MUSCLE_NAMES order; at(lam) interpolates between them."""
+    """start, target (10,) in MUSCLE_NAMES order; at(lam) interpolates between them.
+    Written by solver.face.face_model.FaceModel alone (targets checked by the caller,
+    solver.app.simulation.Simulation.set_activations); terms only read it."""
 
     def __init__(self):
         self.start = np.zeros(len(MUSCLE_NAMES))
         self.target = np.zeros(len(MUSCLE_NAMES))
 
     def set(self, values):
-        """values: dict muscle -> activation (the others keep their targets).
-        All are checked before any is changed."""
-        checked = {m: check_activation(m, v) for m, v in dict(values).items()}
-        for m, v in checked.items():
-            self.target[MUSCLE_NAMES.index(m)] = v
+        """values: dict muscle -> activation in [0, 1], already checked (check_activation);
+        the others keep their targets."""
+        for m, v in dict(values).items():
+            self.target[MUSCLE_NAMES.index(m)] = float(v)
 
     def at(self, lam):
         return self.start + lam * (self.target - self.start)

@@ -106,22 +106,16 @@ class FaceModel:
     def term_names(self):
         return [t.name for t in self.model.terms]
 
+    # The step's inputs (activations, jaw pose) are written here alone: their targets by
+    # set_activations and set_jaw (values checked by solver.app.simulation.Simulation, the
+    # API), committed or rolled back by end_step, restored by restore_inputs.
     def set_activations(self, values):
-        """values: dict muscle -> a in [0, 1]; an undriven muscle must stay at 0."""
-        values = dict(values)
-        for m, v in values.items():
-            if m in MUSCLE_NAMES and m not in self.muscles and v != 0:
-                raise ParameterError(f"muscle {m} is not driven in this model "
-                                     f"(driven: {', '.join(self.muscles) or 'none'})")
+        """values: dict muscle -> target activation in [0, 1] (checked by the caller)."""
         self.activation.set(values)
 
-    def set_jaw(self, opening=None, protrusion=None):
-        """Target jaw opening (deg) and protrusion (mm) for the next solve (None keeps
-        one); out-of-range or non-finite values raise ParameterError, nothing changed."""
-        if self.jaw is None:
-            raise ParameterError(f"anatomy {self.anatomy.name!r} has no jaw (no "
-                                 "'fixed_mandible' node set or teeth surfaces)")
-        self.jaw.set(opening, protrusion)
+    def set_jaw(self, pose):
+        """Target jaw pose (opening deg, protrusion mm; checked by the caller, Jaw.pose)."""
+        self.jaw.target = np.array(pose, dtype=float).reshape(2)
         self._prescribe_jaw()
 
     def _prescribe_jaw(self):
@@ -129,9 +123,10 @@ class FaceModel:
         self.model.prescribe(self.jaw.geometry.nodes, self.jaw.displacement(self.jaw.target))
 
     def end_step(self, converged):
-        """After a solve or a transient step: commit the jaw's target pose, or on failure
-        put the targets (activations, jaw) back to the last converged state."""
+        """After a solve or a transient step: commit the targets (activations, jaw pose) as
+        the converged state, or on failure put them back to the last converged one."""
         if converged:
+            self.activation.commit()
             if self.jaw is not None:
                 self.jaw.commit()
             return
@@ -139,6 +134,13 @@ class FaceModel:
         if self.jaw is not None and np.any(self.jaw.target != self.jaw.start):
             self.jaw.target = self.jaw.start.copy()
             self._prescribe_jaw()
+
+    def restore_inputs(self, activation, pose):
+        """Put the activations (10,) and the jaw at pose (opening, protrusion) as the
+        converged state, targets equal (a simulation's set_state)."""
+        self.activation.start = np.array(activation, dtype=float).reshape(-1)
+        self.activation.target = self.activation.start.copy()
+        self.set_jaw_state(pose)
 
     def set_jaw_state(self, pose):
         """Put the jaw at pose (opening, protrusion) as the converged state (set_state)."""
@@ -163,14 +165,12 @@ class FaceModel:
         res = self.model.solve_static(steps=steps, **kw)
         res.relaxation = None
         if not res.converged and relax:
-            start = self.activation.start.copy()
             rel = relax_to_equilibrium(self.model)
             res.relaxation = rel
             if rel.converged:
                 res.converged, res.reason = True, ""
                 res.displacement = self.model.u.copy()
             else:
-                self.activation.start = start
                 res.reason = f"{res.reason}; then {rel.reason}"
         self.end_step(res.converged)
         return res

@@ -131,14 +131,15 @@ class Jaw:
         self.start = np.zeros(2)
         self.target = np.zeros(2)
 
-    def set(self, opening=None, protrusion=None):
-        """New targets (None keeps one); both are checked before either changes."""
+    def pose(self, opening=None, protrusion=None):
+        """(2,) the target pose with opening and protrusion checked (check_jaw; None keeps
+        the current target's): ParameterError naming a bad one, nothing changed."""
         new = self.target.copy()
         if opening is not None:
             new[0] = check_jaw("jaw_opening", opening)
         if protrusion is not None:
             new[1] = check_jaw("jaw_protrusion", protrusion)
-        self.target = new
+        return new
 
     def at(self, lam):
         """(2,) the pose at load factor lam."""

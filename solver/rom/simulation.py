@@ -167,13 +167,12 @@ class ReducedSimulation(Simulation):
         q_n, v_n, h = self.stepper.last
         return self.checker.residual(self.op.V, self.q, q_n, v_n, h, self.op.L, self.op.L_n)
 
-    def _to_full(self, q, v, activation_start):
+    def _to_full(self, q, v):
         """Hand the reduced state to the full model (from then on, mode 'full')."""
         L = self._lift()
         self.face.model.u = self.op.displacement(q, L).copy()
         self.integrator.v = self.op.displacement(v, 0.0 * L).copy()
         self.integrator.t = self.t
-        self.face.activation.start = activation_start
         self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
         self.mode = "full"
         self.fallbacks += 1
@@ -186,7 +185,7 @@ class ReducedSimulation(Simulation):
             raise ParameterError(f"step end {t_end!r} must be after the current time "
                                  f"{self.t!r}")
         act, jaw = self.face.activation, self.face.jaw
-        start = (self.q, self.v_r, act.start.copy(), self._substeps)
+        start = (self.q, self.v_r, self._substeps)
         stats = StepStats()
         with single_threaded_blas():    # r-sized products: threads cost more than they give
             ok, q, v = self.stepper.advance(self.q, self.v_r, act, self.t, t_end, stats, jaw)
@@ -195,7 +194,7 @@ class ReducedSimulation(Simulation):
             self._substeps += stats.substeps
         rho = None
         if ok and self.trust != "off" and self._substeps // self.check_every \
-                > start[3] // self.check_every:
+                > start[2] // self.check_every:
             rho = self.trust_residual()
             self.trust_history.append((float(t_end), rho))
         pen = self.stepper.penetration if ok and self.trust != "off" else 0.0
@@ -210,16 +209,14 @@ class ReducedSimulation(Simulation):
             if self.trust == "fallback":
                 warnings.warn(f"realtime model at t = {t_end:.4g} s: {what}; switching to "
                               "the full model", TrustWarning, stacklevel=2)
-                self.q, self.v_r, self._substeps = start[0], start[1], start[3]
-                self._to_full(start[0], start[1], start[2])
+                self.q, self.v_r, self._substeps = start
+                self._to_full(start[0], start[1])
                 stats = super().step(t_end)
                 stats.reason = (stats.reason + "; " if stats.reason else "") + \
                     "fell back to the full model"
                 return stats
             if not ok:
-                act.start = start[2]
-                act.target = act.start.copy()
-                self.face.end_step(False)                   # the jaw's target back
+                self.face.end_step(False)                   # the inputs' targets back
                 stats.converged = False
                 self.last = stats
                 return stats
@@ -228,8 +225,7 @@ class ReducedSimulation(Simulation):
                 warnings.warn(f"realtime model at t = {t_end:.4g} s: {what} (trust 'warn': "
                               f"further steps past it are counted in trust_exceeded, not "
                               f"warned)", TrustWarning, stacklevel=2)
-        act.commit()
-        self.face.end_step(True)                            # the jaw's pose committed
+        self.face.end_step(True)                            # the inputs committed
         self.t = float(t_end)
         self.last = stats
         return stats
@@ -238,7 +234,7 @@ class ReducedSimulation(Simulation):
         """As Simulation.set_jaw. A target pose outside the poses the model was trained
         on (meta "jaw_envelope") is outside its envelope: the simulation goes on with the
         full model (mode 'full', a TrustWarning naming the input and the envelope)."""
-        self.face.set_jaw(opening, protrusion)              # checked, or refused
+        super().set_jaw(opening, protrusion)                # checked, or refused
         if self.mode != "rom" or self.trust == "off":
             return
         envelope = self.rom_meta.get("jaw_envelope", {})
@@ -250,7 +246,7 @@ class ReducedSimulation(Simulation):
                               f"[{lo:g}, {hi:g}]; switching to the full model",
                               TrustWarning, stacklevel=2)
                 if self.trust == "fallback":
-                    self._to_full(self.q, self.v_r, self.face.activation.start.copy())
+                    self._to_full(self.q, self.v_r)
                 return
 
     # -- outputs and state ---------------------------------------------------------------
@@ -313,12 +309,11 @@ class ReducedSimulation(Simulation):
             return
         self.mode = "rom"
         self.t = float(state["t"])
-        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))
+        self.face.set_jaw_state(state.get("jaw", (0.0, 0.0)))     # the lifting below
         V = self.op.V
         self.q = np.array(state["q"], float) if "q" in state else \
             V.T @ (np.asarray(state["u"], float).ravel() - self._lift().ravel())
         self.v_r = np.array(state["v_r"], float) if "v_r" in state else \
             V.T @ np.asarray(state["v"], float).ravel()
-        self.face.activation.start = np.array(state["activation"], dtype=float)
-        self.face.activation.target = self.face.activation.start.copy()
+        self.face.restore_inputs(state["activation"], state.get("jaw", (0.0, 0.0)))
         self.stepper.reset_caches()

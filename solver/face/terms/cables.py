@@ -98,6 +98,3 @@ class Cables(Term):
         """The active forces' scale (N)."""
         return float(np.linalg.norm(self.AE * self.active_strain(lam)))
 
-    def commit(self, state):
-        if state.lam >= 1.0:
-            self.activation.commit()
