@@ -1,6 +1,6 @@
 """The solver package's layers, read from its source with ast (nothing is imported): the
 finite-element core imports nothing outside the core, and the package's imports have no
-cycle but the ones listed in CYCLE_BREAKS, each broken by an import inside a function.
+cycle, at module level or inside functions.
 
 An edge a -> b: module a imports module b, relative or absolute, at module level or
 inside a function (`from pkg import name` is an import of pkg.name where that is a
@@ -35,15 +35,6 @@ def layer(module):
             return i
     assert module == "solver", f"{module} is in no layer"
     return len(LAYERS) - 1
-
-
-# Imports inside a function that close a cycle: (importer, imported) -> why.
-CYCLE_BREAKS = {
-    ("solver.rom.simulation", "solver.rom.train"):
-        "ReducedSimulation(rom_train=True) trains a missing model on demand, and training "
-        "calibrates the model's trust threshold with a ReducedSimulation "
-        "(solver.rom.train.calibrate imports solver.rom.simulation in the function too)",
-}
 
 
 def _modules():
@@ -95,11 +86,11 @@ def _imports(name, path):
 GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
 
 
-def _edges(function_level=True, skip=()):
+def _edges(function_level=True):
     """{module: set of imported modules}: module-level imports, and with function_level
-    those inside functions too, but the (importer, imported) pairs in skip."""
-    return {a: {b for b, inside in deps if (function_level or not inside)
-                and (a, b) not in skip} for a, deps in GRAPH.items()}
+    those inside functions too."""
+    return {a: {b for b, inside in deps if function_level or not inside}
+            for a, deps in GRAPH.items()}
 
 
 def _cycle(edges):
@@ -160,14 +151,5 @@ def test_no_cycle_among_module_level_imports():
     assert _cycle(_edges(function_level=False)) is None
 
 
-def test_no_cycle_with_function_level_imports_but_the_listed_breaks():
-    assert _cycle(_edges(skip=CYCLE_BREAKS)) is None
-
-
-@pytest.mark.parametrize("pair", sorted(CYCLE_BREAKS))
-def test_each_listed_break_is_a_function_level_import_that_closes_a_cycle(pair):
-    importer, imported = pair
-    assert (imported, True) in GRAPH[importer], f"{importer} no longer imports {imported}"
-    assert (imported, False) not in GRAPH[importer]
-    others = {p for p in CYCLE_BREAKS if p != pair}
-    assert _cycle(_edges(skip=others)) is not None, f"{pair} closes no cycle: drop it"
+def test_no_cycle_with_function_level_imports():
+    assert _cycle(_edges()) is None

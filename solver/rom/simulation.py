@@ -6,8 +6,7 @@ outputs, and it is the fallback. Its reduced model (solver.rom.store) is looked 
 scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
 `python build_fmu.py --rom`), then in the user cache, then among the models that ship
 with the project (solver/rom/models); where there is none,
-ModelNotTrained names the training command (`rom_train=True` trains one on demand, with
-a message, in this process).
+ModelNotTrained names the training command. Its knobs are one ReducedOptions.
 
 Time stepping (solver.rom.stepper): backward Euler in reduced coordinates at fixed
 substeps of at most h = 1 ms, activations ramping within a caller's step as in the full
@@ -38,6 +37,7 @@ time stepping' and 'Trust check and fallback'.
 """
 
 import warnings
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -51,7 +51,7 @@ from solver.face.jaw import JAW_INPUTS, JAW_UNITS
 from solver.face.terms.contact import TOLERANCE
 from solver.rom.reduced import ReducedOperator
 from solver.rom.stepper import H_MAX, METHODS, Stepper
-from solver.rom.store import ModelNotTrained, find_model, load_model, model_path
+from solver.rom.store import find_model, load_model
 from solver.rom.outputs import LipOutputs
 from solver.rom.trust import TrustCheck
 
@@ -63,30 +63,58 @@ class TrustWarning(UserWarning):
     """The reduced solution left the range the model was trained on."""
 
 
+@dataclass(frozen=True)
+class ReducedOptions:
+    """The reduced model's knobs. trust: 'fallback' | 'warn' | 'off'; check_every:
+    substeps between trust checks; h: largest substep (s; None: H_MAX, or the scene's
+    max_substep where that is smaller); utol (mm), max_iter: the reduced Newton's; method
+    'fast' (default) or 'reference' with its own knobs (refresh; rate, contact_delta,
+    max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant) or 'current'
+    (K_n by the cubature on the shape at the start of each substep; the reference method
+    rebuilds it every damping_refresh substeps); warmup: load every kernel at
+    construction (ReducedSimulation.warmup)."""
+
+    trust: str = "fallback"
+    check_every: int = 100
+    h: float | None = None
+    refresh: int = 4
+    utol: float = 1e-2
+    max_iter: int = 20
+    damping: str = "current"
+    damping_refresh: int = 5
+    method: str = "fast"
+    rate: float = 0.8
+    contact_delta: float = 0.5
+    max_frozen: int = 6
+    kb_every: int = 50
+    warmup: bool = True
+
+    def __post_init__(self):
+        if self.damping not in ("rest", "current"):
+            raise ParameterError(f"damping = {self.damping!r} is not 'rest' or 'current'")
+        if self.trust not in TRUST_MODES:
+            raise ParameterError(f"trust = {self.trust!r} is not one of {TRUST_MODES}")
+        if self.method not in METHODS:
+            raise ParameterError(f"method = {self.method!r} is not one of {METHODS}")
+
+
+OPTION_NAMES = frozenset(f.name for f in fields(ReducedOptions))
+
+
 class ReducedSimulation(Simulation):
-    """Extra keyword arguments (besides Simulation's): rom_model (a .npz path or an
-    (arrays, meta) pair: use this model whatever the scene's key), rom_dirs (folders
-    searched for the scene's model before the user cache, e.g. an FMU's resources),
-    rom_train (train on demand when no model is found), trust ('fallback' | 'warn' |
-    'off'), check_every (substeps between trust checks), h (largest substep, s; None:
-    H_MAX, or the scene's max_substep where that is smaller), utol,
-    max_iter; method 'fast' (default) or 'reference' with its own knobs (refresh; rate,
-    contact_delta, max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant)
-    or 'current' (K_n by the cubature on the shape at the start of each substep; the
-    reference method rebuilds it every damping_refresh substeps); warmup: load every
-    kernel at construction (warmup())."""
+    """The reduced model of a scene behind Simulation's API. rom_model: a .npz path or an
+    (arrays, meta) pair (this model whatever the scene's key); rom_dirs: folders searched
+    for the scene's model before the user cache (e.g. an FMU's resources); options: a
+    ReducedOptions, whose fields may also be given as keywords (they replace its values);
+    the other keywords go to the full-order Simulation."""
 
     def __init__(self, scene="default", loaded_anatomy=None, fidelity=None,
-                 rom_model=None, rom_dirs=(), rom_train=False, trust="fallback",
-                 check_every=100, h=None, refresh=4, utol=1e-2, max_iter=20,
-                 damping="current", damping_refresh=5, method="fast", rate=0.8,
-                 contact_delta=0.5, max_frozen=6, kb_every=50, warmup=True, **overrides):
-        if damping not in ("rest", "current"):
-            raise ParameterError(f"damping = {damping!r} is not 'rest' or 'current'")
-        if trust not in TRUST_MODES:
-            raise ParameterError(f"trust = {trust!r} is not one of {TRUST_MODES}")
-        if method not in METHODS:
-            raise ParameterError(f"method = {method!r} is not one of {METHODS}")
+                 rom_model=None, rom_dirs=(), options=None, **overrides):
+        knobs = {k: overrides.pop(k) for k in list(overrides) if k in OPTION_NAMES}
+        opts = replace(options or ReducedOptions(), **knobs)
+        self.options = opts
+        trust, check_every, h, utol, max_iter = (opts.trust, opts.check_every, opts.h,
+                                                 opts.utol, opts.max_iter)
         scene = resolve_scene(scene)
         if fidelity is None and scene.fidelity not in REDUCED:
             fidelity = "realtime"
@@ -100,15 +128,7 @@ class ReducedSimulation(Simulation):
                                  f"(scene {sc.name!r}: analysis {sc.analysis!r}, gravity "
                                  f"{sc.gravity!r}); use fidelity 'fast'")
         if rom_model is None:
-            try:
-                arrays, meta = find_model(sc, rom_dirs)
-            except ModelNotTrained:
-                if not rom_train:
-                    raise
-                from solver.rom.train import train
-                print(f"facefmu: no realtime model for scene {sc.name!r}; training one "
-                      f"(full-order snapshot runs, minutes) into {model_path(sc)}", flush=True)
-                arrays, meta = load_model(train(sc, sim=self))
+            arrays, meta = find_model(sc, rom_dirs)
         elif isinstance(rom_model, tuple):
             arrays, meta = rom_model
         else:
@@ -125,20 +145,20 @@ class ReducedSimulation(Simulation):
         M_r = arrays["M_r"]
         self.op = ReducedOperator(self, V, arrays["bricks"], arrays["weights"],
                                   m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
-        self.stepper = Stepper(self.op, M_r, alpha, beta, damping, damping_refresh, h, utol,
-                               max_iter, method, refresh, rate, contact_delta, max_frozen,
-                               kb_every)
+        self.stepper = Stepper(self.op, M_r, alpha, beta, opts.damping, opts.damping_refresh,
+                               h, utol, max_iter, opts.method, opts.refresh, opts.rate,
+                               opts.contact_delta, opts.max_frozen, opts.kb_every)
         r = V.shape[1]
         self.q, self.v_r = np.zeros(r), np.zeros(r)
         self._substeps = 0
         self.checker = None if trust == "off" else \
-            TrustCheck(self, kg_per_m3(sc.density), alpha, beta, m_scale, damping)
+            TrustCheck(self, kg_per_m3(sc.density), alpha, beta, m_scale, opts.damping)
         self._outputs = LipOutputs(self.face, V)
         self.mode = "rom"
         self.fallbacks = 0               # handovers to the full model (_to_full)
         self.trust_exceeded = {}         # trust "warn": {cause: steps past its limit}
         self.trust_history = []          # (t, rho) of every check
-        if warmup:
+        if opts.warmup:
             self.warmup()
 
     def warmup(self):

@@ -182,7 +182,7 @@ def find_model(scene, folders=()):
         f"{paths[-1].name} in {where}); train it with: "
         f"{TRAIN_COMMAND.replace('SCENE', name)}"
         + (" (SCENE: this scene's TOML file)" if name == "SCENE" else "")
-        + "; or pass rom_train=True to train on demand. An FMU carries models packed by "
+        + ". An FMU carries models packed by "
         "python build_fmu.py --rom FILE.npz (or --with-realtime for the speech scene)")
 
 
