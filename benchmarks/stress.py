@@ -1,4 +1,4 @@
-"""The stress run: every hard case of solver/validation/stability.py, its invariants, the step-halving
+"""The stress run: every hard case of solver/validation/stability/, its invariants, the step-halving
 convergence check and (--fmu) the same cases through the built FMU with fmpy; a table.
 
     python benchmarks/stress.py [--quick] [--no-fmu] [--no-halving] [--cases NAME ...]
@@ -214,7 +214,7 @@ def markdown(rows, command, notes, problems, wall, part=None, started=None):
              f"{datetime.date.today().isoformat()}, {platform.machine()} "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores), "
              f"{wall / 60:.1f} min in all (times are upper bounds: the machine may have "
-             "had other work). Cases and checks: `solver/validation/stability.py`; "
+             "had other work). Cases and checks: `solver/validation/stability/`; "
              "their quick versions are `tests/test_stability.py`.", ""]
     legend = [
              "Every case: no NaN or inf; det F > 0 at every Gauss point (column min_det_f, "

@@ -1,5 +1,5 @@
-"""Hard cases stay stable: the quick versions of solver/validation/stability.py's cases (the full ones
-run with `python benchmarks/stress.py`, or here with `pytest -m slow`).
+"""Hard cases stay stable: the quick versions of the cases of solver/validation/stability/
+(the full ones run with `python benchmarks/stress.py`, or here with `pytest -m slow`).
 
 For every case: no NaN or inf, no inverted brick (det F > 0 at every Gauss point), lips
 within the contact tolerance where contact is on, outputs within bounds (aperture >= 0),

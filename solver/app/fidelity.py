@@ -33,7 +33,7 @@ DEFAULTS = dict(substep_tol=1e-3, max_substep=5e-3, newton_rtol=1e-6, newton_uto
 # Newton at 1e-4 on the residual and 1e-2 mm on its last update (a residual tolerance of
 # 1e-3 takes benchmarks/fast_path.py's case a to a cutback); the lip penalty stays PENALTY:
 # a softer one lets the reference face's lips into each other by more than the 0.05 mm
-# contact tolerance of solver/validation/stability.py under OOP + BUC at 1
+# contact tolerance of solver.validation.stability under OOP + BUC at 1
 NEWTON_LOOSE = dict(newton_rtol=1e-4, newton_utol=1e-2, lip_penalty=PENALTY)
 # BDF2 (second order) at substeps of at most the co-simulation's 5 ms; its error estimate
 # shortens them where activations jump. The substep tolerances keep each preset's time
