@@ -55,7 +55,51 @@ def _contact_terms(anatomy, scene, jaw=None):
                                lip_penalty=scene.lip_penalty, jaw=jaw)
 
 
-class Simulation:
+class SceneDriver:
+    """A scene's standalone run, for any simulation with scene, t, face, jaw,
+    set_activations, set_jaw, step and outputs (Simulation, and the reduced model of
+    solver.rom.simulation, which holds a Simulation instead of being one)."""
+
+    def run(self, progress=False, on_record=None):
+        """A standalone run of the scene's schedules: records (list of dicts) at every
+        output interval up to the scene's duration. on_record(sim, row) is called at each."""
+        sc = self.scene
+        times = np.arange(1, int(round(sc.duration / sc.interval)) + 1) * sc.interval
+        rows = [self._record()]
+        if on_record:
+            on_record(self, rows[0])
+        iterator = times
+        if progress:
+            tqdm = need("tqdm", "sweep", "a progress bar (Simulation.run(progress=True))").tqdm
+            iterator = tqdm(times, desc=sc.name, unit="record")
+        for t in iterator:
+            self.set_activations(sc.activations(t))
+            jaw = sc.jaw(t)
+            if jaw:
+                self.set_jaw(jaw.get("jaw_opening"), jaw.get("jaw_protrusion"))
+            stats = self.step(float(t))
+            if not stats.converged:
+                raise RuntimeError(f"scene {sc.name}: step to t = {t:.4g} s failed: "
+                                   f"{stats.reason}")
+            rows.append(self._record())
+            if on_record:
+                on_record(self, rows[-1])
+        return rows
+
+    def _record(self):
+        out = self.outputs()
+        row = {"time": self.t}
+        row.update({k: v for k, v in out.items() if k in self.scene.record
+                    or (k.startswith("strain_") and "muscle_strains" in self.scene.record)})
+        row.update(self.face.activation.as_dict(self.face.activation.start))
+        if self.scene.jaw(0.0):
+            row["jaw_opening"], row["jaw_protrusion"] = self.jaw
+            row["incisor_opening"] = out["incisor_opening"]
+        return row
+
+
+
+class Simulation(SceneDriver):
     """The full model. scene: Scene, built-in name or TOML path; fidelity: a preset name
     of solver.app.fidelity (applied before the overrides; a reduced-order one such as
     "realtime" is refused: solver.entry.open_simulation opens it); overrides: Scene fields
@@ -197,43 +241,6 @@ class Simulation:
             for m, (lo, hi) in self.face.region_strains().items():
                 out[f"strain_min_{m}"], out[f"strain_max_{m}"] = lo, hi
         return out
-
-    def run(self, progress=False, on_record=None):
-        """A standalone run of the scene's schedules: records (list of dicts) at every
-        output interval up to the scene's duration. on_record(sim, row) is called at each."""
-        sc = self.scene
-        times = np.arange(1, int(round(sc.duration / sc.interval)) + 1) * sc.interval
-        rows = [self._record()]
-        if on_record:
-            on_record(self, rows[0])
-        iterator = times
-        if progress:
-            tqdm = need("tqdm", "sweep", "a progress bar (Simulation.run(progress=True))").tqdm
-            iterator = tqdm(times, desc=sc.name, unit="record")
-        for t in iterator:
-            self.set_activations(sc.activations(t))
-            jaw = sc.jaw(t)
-            if jaw:
-                self.set_jaw(jaw.get("jaw_opening"), jaw.get("jaw_protrusion"))
-            stats = self.step(float(t))
-            if not stats.converged:
-                raise RuntimeError(f"scene {sc.name}: step to t = {t:.4g} s failed: "
-                                   f"{stats.reason}")
-            rows.append(self._record())
-            if on_record:
-                on_record(self, rows[-1])
-        return rows
-
-    def _record(self):
-        out = self.outputs()
-        row = {"time": self.t}
-        row.update({k: v for k, v in out.items() if k in self.scene.record
-                    or (k.startswith("strain_") and "muscle_strains" in self.scene.record)})
-        row.update(self.face.activation.as_dict(self.face.activation.start))
-        if self.scene.jaw(0.0):
-            row["jaw_opening"], row["jaw_protrusion"] = self.jaw
-            row["incisor_opening"] = out["incisor_opening"]
-        return row
 
     def release(self):
         """Free the linear solver's native memory (the simulation stays usable)."""

@@ -44,7 +44,7 @@ import numpy as np
 from solver.core.errors import ParameterError
 from solver.core.linsolve import single_threaded_blas
 from solver.app.fidelity import REDUCED, apply_fidelity
-from solver.app.simulation import Simulation, resolve_scene
+from solver.app.simulation import SceneDriver, Simulation, resolve_scene
 from solver.core.transient import StepStats
 from solver.core.units import kg_per_m3
 from solver.face.jaw import JAW_INPUTS, JAW_UNITS
@@ -101,8 +101,11 @@ class ReducedOptions:
 OPTION_NAMES = frozenset(f.name for f in fields(ReducedOptions))
 
 
-class ReducedSimulation(Simulation):
-    """The reduced model of a scene behind Simulation's API. rom_model: a .npz path or an
+class ReducedSimulation(SceneDriver):
+    """The reduced model of a scene behind Simulation's API. It holds the scene's
+    full-order Simulation (``full``): its face, anatomy, scene and contact terms are the
+    reduced model's, its set_inputs checks the inputs, and it takes over from the reduced
+    state where the trust check fails (``mode`` "full"). rom_model: a .npz path or an
     (arrays, meta) pair (this model whatever the scene's key); rom_dirs: folders searched
     for the scene's model before the user cache (e.g. an FMU's resources); options: a
     ReducedOptions, whose fields may also be given as keywords (they replace its values);
@@ -121,7 +124,11 @@ class ReducedSimulation(Simulation):
         if fidelity is not None and fidelity != scene.fidelity:
             scene = apply_fidelity(scene, fidelity)   # else a scene (file) that names it:
                                                       # its knobs, its own keys winning
-        super().__init__(scene, loaded_anatomy, **overrides)
+        self.full = full = Simulation(scene, loaded_anatomy, **overrides)
+        self.scene, self.anatomy, self.face = full.scene, full.anatomy, full.face
+        self.contact = full.contact
+        self.mode = "rom"
+        self._t, self._last = 0.0, StepStats()
         sc = self.scene
         if sc.analysis != "transient" or sc.gravity != "none" or not (sc.inertia or sc.damping):
             raise ParameterError("fidelity 'realtime' runs transient scenes without gravity "
@@ -143,7 +150,7 @@ class ReducedSimulation(Simulation):
         beta = sc.beta if sc.damping else 0.0
         m_scale = 1.0 if sc.inertia else 0.0
         M_r = arrays["M_r"]
-        self.op = ReducedOperator(self, V, arrays["bricks"], arrays["weights"],
+        self.op = ReducedOperator(full, V, arrays["bricks"], arrays["weights"],
                                   m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
         self.stepper = Stepper(self.op, M_r, alpha, beta, opts.damping, opts.damping_refresh,
                                h, utol, max_iter, opts.method, opts.refresh, opts.rate,
@@ -152,9 +159,8 @@ class ReducedSimulation(Simulation):
         self.q, self.v_r = np.zeros(r), np.zeros(r)
         self._substeps = 0
         self.checker = None if trust == "off" else \
-            TrustCheck(self, kg_per_m3(sc.density), alpha, beta, m_scale, opts.damping)
+            TrustCheck(full, kg_per_m3(sc.density), alpha, beta, m_scale, opts.damping)
         self._outputs = LipOutputs(self.face, V)
-        self.mode = "rom"
         self.fallbacks = 0               # handovers to the full model (_to_full)
         self.trust_exceeded = {}         # trust "warn": {cause: steps past its limit}
         self.trust_history = []          # (t, rho) of every check
@@ -181,18 +187,61 @@ class ReducedSimulation(Simulation):
         """rho (solver.rom.trust) at the current reduced state (after a substep)."""
         if self.checker is None:
             sc = self.scene
-            self.checker = TrustCheck(self, kg_per_m3(sc.density), self.stepper.alpha,
+            self.checker = TrustCheck(self.full, kg_per_m3(sc.density), self.stepper.alpha,
                                       self.stepper.beta, 1.0 if sc.inertia else 0.0,
                                       self.stepper.damping)
         q_n, v_n, h = self.stepper.last
         return self.checker.residual(self.op.V, self.q, q_n, v_n, h, self.op.L, self.op.L_n)
+
+    # -- what the held full-order Simulation answers --------------------------------------
+    @property
+    def t(self):
+        """s: the current time (the full model's once it took over)."""
+        return self.full.t if self.mode == "full" else self._t
+
+    @t.setter
+    def t(self, value):
+        self._t = self.full.t = float(value)
+
+    @property
+    def last(self):
+        """StepStats of the last step."""
+        return self.full.last if self.mode == "full" else self._last
+
+    @last.setter
+    def last(self, stats):
+        self._last = stats
+
+    @property
+    def integrator(self):
+        """The full model's transient integrator (its energy bookkeeping, the fallback)."""
+        return self.full.integrator
+
+    @property
+    def term_names(self):
+        return self.full.term_names
+
+    @property
+    def jaw(self):
+        return self.full.jaw
+
+    def set_activations(self, values):
+        """As Simulation.set_activations."""
+        self.set_inputs(activations=values)
+
+    def set_jaw(self, opening=None, protrusion=None):
+        """As Simulation.set_jaw (and set_inputs below)."""
+        self.set_inputs(jaw=(opening, protrusion))
+
+    def release(self):
+        self.full.release()
 
     def _to_full(self, q, v):
         """Hand the reduced state to the full model (from then on, mode 'full')."""
         L = self._lift()
         self.face.model.u = self.op.displacement(q, L).copy()
         self.integrator.v = self.op.displacement(v, 0.0 * L).copy()
-        self.integrator.t = self.t
+        self.integrator.t = self.full.t = self._t
         self.face.model.system().restore(self.face.model.u.ravel())   # contact candidates
         self.mode = "full"
         self.fallbacks += 1
@@ -200,7 +249,7 @@ class ReducedSimulation(Simulation):
     def step(self, t_end):
         """Advance to t_end; StepStats (converged False leaves the state at its start)."""
         if self.mode == "full":
-            return super().step(t_end)
+            return self.full.step(t_end)
         if not (np.isfinite(t_end) and t_end > self.t):
             raise ParameterError(f"step end {t_end!r} must be after the current time "
                                  f"{self.t!r}")
@@ -231,7 +280,7 @@ class ReducedSimulation(Simulation):
                               "the full model", TrustWarning, stacklevel=2)
                 self.q, self.v_r, self._substeps = start
                 self._to_full(start[0], start[1])
-                stats = super().step(t_end)
+                stats = self.full.step(t_end)
                 stats.reason = (stats.reason + "; " if stats.reason else "") + \
                     "fell back to the full model"
                 return stats
@@ -250,11 +299,18 @@ class ReducedSimulation(Simulation):
         self.last = stats
         return stats
 
-    def set_jaw(self, opening=None, protrusion=None):
-        """As Simulation.set_jaw. A target pose outside the poses the model was trained
-        on (meta "jaw_envelope") is outside its envelope: the simulation goes on with the
-        full model (mode 'full', a TrustWarning naming the input and the envelope)."""
-        super().set_jaw(opening, protrusion)                # checked, or refused
+    def set_inputs(self, activations=None, jaw=None, undriven="error"):
+        """As Simulation.set_inputs (the full model checks them). A target jaw pose outside
+        the poses the model was trained on (meta "jaw_envelope") is outside its envelope:
+        the simulation goes on with the full model (mode 'full', a TrustWarning naming the
+        input and the envelope)."""
+        idle = self.full.set_inputs(activations, jaw, undriven)    # checked, or refused
+        if jaw is not None and self.face.jaw is not None:
+            self._check_envelope()
+        return idle
+
+    def _check_envelope(self):
+        """The jaw's target against the training envelope (set_inputs)."""
         if self.mode != "rom" or self.trust == "off":
             return
         envelope = self.rom_meta.get("jaw_envelope", {})
@@ -264,7 +320,7 @@ class ReducedSimulation(Simulation):
                 warnings.warn(f"realtime model at t = {self.t:.4g} s: {name} = {value:g} "
                               f"{JAW_UNITS[name]} is outside its training envelope "
                               f"[{lo:g}, {hi:g}]; switching to the full model",
-                              TrustWarning, stacklevel=2)
+                              TrustWarning, stacklevel=4)
                 if self.trust == "fallback":
                     self._to_full(self.q, self.v_r)
                 return
@@ -272,7 +328,7 @@ class ReducedSimulation(Simulation):
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
-            return {**super().outputs(), "rom_fallbacks": self.fallbacks}
+            return {**self.full.outputs(), "rom_fallbacks": self.fallbacks}
         L = self._lift()
         if "muscle_strains" in self.scene.record:
             u = self.op.displacement(self.q, L)
@@ -302,11 +358,11 @@ class ReducedSimulation(Simulation):
     @property
     def v(self):
         """(n, 3) the current velocities (mm/s; V v_r in mode 'rom')."""
-        return super().v if self.mode == "full" else self.op.displacement(self.v_r, 0.0)
+        return self.full.v if self.mode == "full" else self.op.displacement(self.v_r, 0.0)
 
     def get_state(self, fresh=True):
         if self.mode == "full":
-            return {**super().get_state(fresh), "mode": "full", "fallbacks": self.fallbacks,
+            return {**self.full.get_state(fresh), "mode": "full", "fallbacks": self.fallbacks,
                     "trust_exceeded": self._exceeded()}
         if fresh:
             self.stepper.reset_caches()      # the next step starts afresh, as after set_state
@@ -324,8 +380,8 @@ class ReducedSimulation(Simulation):
             counts = np.asarray(state["trust_exceeded"], dtype=np.int64).ravel()
             self.trust_exceeded = {c: int(n) for c, n in zip(TRUST_CAUSES, counts) if n}
         if state.get("mode", "rom") == "full":
-            super().set_state(state)
             self.mode = "full"
+            self.full.set_state(state)
             return
         self.mode = "rom"
         self.t = float(state["t"])
