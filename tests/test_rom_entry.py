@@ -189,6 +189,12 @@ def test_realtime_hands_over_to_the_full_model_when_the_jaw_opens(trained, scene
     assert sim.step(0.005).converged and sim.mode == "rom"
     rest = sim.outputs()
     assert rest["incisor_opening"] == 0.0
+    state = sim.get_state()
+    with pytest.warns(TrustWarning, match="jaw_opening = 6 deg is outside its training"):
+        sim.set_inputs({"OOP": 0.3}, jaw=(6.0, 0.0))           # the FMU's path
+    assert sim.mode == "full"
+    sim.set_state(state)
+    assert sim.mode == "rom"
     with pytest.warns(TrustWarning, match="jaw_opening = 6 deg is outside its training"):
         sim.set_jaw(6.0)
     assert sim.mode == "full"
