@@ -4,8 +4,9 @@ compiling the kernels on all cores first, and warm.
     python benchmarks/fmu_startup.py [--fmu dist/FaceFMU.fmu] [--jobs N] [--md FILE]
 
 Each start runs in a fresh process (instantiate and initialize at the FMU's defaults, one
-5 ms doStep). cold: an empty NUMBA_CACHE_DIR, numba compiles each kernel at its first
-call; cold, compiled first: an empty one filled by `python -m solver.app.warm --jobs N`
+5 ms doStep). cold: an empty NUMBA_CACHE_DIR, which the FMU fills at its initialization
+(on all cores where the host is a Python interpreter, else at the first calls); cold,
+compiled first: an empty one filled by `python -m solver.app.warm --jobs N`
 (default: the CPUs) before the FMU's process starts, as examples/cosim_speech.py does;
 warm: a cache that holds the kernels. Prints each, in one call; --md writes them as a
 table with the command and commit.
@@ -72,7 +73,8 @@ def main(argv=None):
               + f"initialization {init:.2f} s, first doStep {step:.2f} s, process total "
               f"{total:.2f} s; {first + total:.2f} s in all", flush=True)
     with tempfile.TemporaryDirectory() as cache:
-        row("cold: numba compiles at the first calls", 0.0, *start(args.fmu, cache))
+        row("cold: the FMU compiles the kernels at initialization", 0.0,
+            *start(args.fmu, cache))
         row("warm: the kernels cached", 0.0, *start(args.fmu, cache))
     with tempfile.TemporaryDirectory() as cache:
         first = compile_first(cache, args.jobs)

@@ -164,10 +164,17 @@ def main(argv=None):
     targets = load_targets(args.targets)
     stop = sum(tg["duration"] for tg in targets)
     t0 = time.perf_counter()
-    face_fmu, control_fmu = build_fmus(out)
-    print(f"built {face_fmu.name} and {control_fmu.name} in {time.perf_counter() - t0:.1f} s")
-    # a fresh machine compiles the solver's kernels first, on all cores (solver/app/warm.py)
-    subprocess.run([sys.executable, "-m", "solver.app.warm", "--quiet"], cwd=ROOT)
+    # a fresh machine compiles the solver's kernels on all cores (solver/app/warm.py) while
+    # the FMUs are built; where they are compiled already this returns at once
+    warm = subprocess.Popen([sys.executable, "-m", "solver.app.warm", "--quiet"], cwd=ROOT)
+    try:
+        face_fmu, control_fmu = build_fmus(out)
+    except BaseException:
+        warm.kill()
+        raise
+    print(f"built {face_fmu.name} and {control_fmu.name} in {time.perf_counter() - t0:.1f} s",
+          flush=True)
+    warm.wait()
     face = {"scene": args.scene, "fidelity": args.fidelity}
     if not args.fidelity:
         face["level"] = args.level

@@ -165,6 +165,8 @@ class FaceFMU(Fmi2Slave):
         from solver.entry import open_simulation
         if not kernels_warm():
             self.log(compile_notice(), Fmi2Status.ok)
+            from solver.app.warm import warm_in_subprocess      # on every core at once
+            warm_in_subprocess(log=lambda line: self.log(line, Fmi2Status.ok))
         try:
             overrides = self._overrides()
             self._used = {p: getattr(self, p) for p in PARAMETERS}

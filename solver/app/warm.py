@@ -155,6 +155,31 @@ def warm_kernels(jobs=None, log=None, manifest=None):
     return {"warm": False, "jobs": len(parts), "seconds": seconds}
 
 
+def warm_in_subprocess(log=None):
+    """warm_kernels in a child Python process, for a host that must not start workers of
+    its own: an FMU's importer, where multiprocessing's spawn would run the host's main
+    script again in each worker. The child runs `python -m solver.app.warm` with this
+    solver package first on its path; its lines go to log. Skipped (False) where
+    sys.executable is not a Python interpreter (a host that embeds Python). Returns
+    whether the kernels are compiled after it."""
+    from solver.core._cache import kernels_warm
+    exe = sys.executable
+    if not exe or not Path(exe).name.lower().startswith("python"):
+        return False
+    root = str(Path(__file__).resolve().parents[2])      # the folder holding solver/
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    try:
+        done = subprocess.run([exe, "-m", "solver.app.warm", "--quiet"], env=env,
+                              capture_output=True, text=True)
+    except OSError:
+        return False
+    for line in (done.stdout + done.stderr).splitlines():
+        if log and line.strip():
+            log(line)
+    return kernels_warm()
+
+
 # ------------------------------------------------------------------------ recording
 
 def exercise(steps=3, fidelity="fast"):

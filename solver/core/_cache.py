@@ -191,7 +191,8 @@ def compile_notice():
     """What a user waits for when kernels_warm() is False: a sentence for logs."""
     where = f"cached in {CACHE_DIR}" if CACHE_DIR is not None else "not cached"
     return ("first run of these solver kernels here: numba compiles them before the first "
-            f"step (about a minute on 2 cores; {where} for later runs)")
+            f"step, on every core at once (half a minute on 2 cores; {where} for later "
+            "runs)")
 
 
 CACHE_DIR = solver_cache_dir()
