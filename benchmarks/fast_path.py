@@ -6,9 +6,8 @@
 
 Scene (solver.app.gestures.gesture): transient, OOP 0 -> 1 and RIS 0 -> 0.5 over 0-0.15 s,
 held to 0.3 s, lip and teeth contact on, lip aperture and protrusion recorded every 10 ms,
-at the `balanced` fidelity preset's tolerances (solver.app.fidelity.STEP_LOOSE: substep error
-5e-2 mm, substeps up to 5 ms, Newton 1e-4 on the residual and 1e-2 mm on the last update)
-on
+at the `balanced` fidelity preset's integrator and tolerances (the scene names it;
+solver.app.fidelity.PRESETS, docs/presets.md) on
 
     a  the reference (ANSYS) face, full face (../shared/data/reference-face or
        $FACEFMU_REFERENCE_FACE; skipped where absent)      target 27 s wall for 0.3 s

@@ -24,17 +24,14 @@ iteration, and the direction from the kept Z without another solve. du_0's coeff
 a is free (du_0 joins the augmentation space below, with A du_0 known, and the iteration
 starts from zero): with a = 1 fixed the start's linear residual is -D du_0, many times
 ||c|| where a step carries a slave into contact (a penalty's stiffness), and more
-directions use up their budget of solves (benchmarks/fast_path.py's case a,
-docs/dev-notes/fast_path.md). The iteration stops
-when ||c - (A + D) du|| <= rtol ||c|| (the product A Z taken as V: to the factorization's
-precision). Where it does not within maxiter, no direction is returned and Newton
+directions use up their budget of solves (docs/dev-notes/fast_path.md). The iteration
+stops when ||c - (A + D) du|| <= rtol ||c|| (the product A Z taken as V: to the
+factorization's precision). Where it does not within maxiter, no direction is returned and Newton
 refactorizes.
 
 rtol is Newton's forcing term (an inexact Newton direction): the residual and the
 convergence criteria are Newton's own, so it moves the converged state only within
-Newton's tolerance. The default 0.1: on benchmarks/fast_path.py a tighter rtol (1e-2,
-3e-2) costs more factorizations and time, a looser one (0.2, 0.3) cutbacks
-(docs/dev-notes/fast_path.md).
+Newton's tolerance (why 0.1: docs/dev-notes/fast_path.md).
 
 Recycling (GCRO augmentation): the pairs (Z, A Z) solved for earlier directions on the
 same factorization (at most ``recycle``, the newest) span most of what the next, nearby D
