@@ -57,8 +57,22 @@ def _contact_terms(anatomy, scene, jaw=None):
 
 class SceneDriver:
     """A scene's standalone run, for any simulation with scene, t, face, jaw,
-    set_activations, set_jaw, step and outputs (Simulation, and the reduced model of
+    set_inputs, step and outputs (Simulation, and the reduced model of
     solver.rom.simulation, which holds a Simulation instead of being one)."""
+
+    def set_activations(self, values):
+        """Target activations for the next step: dict muscle -> a in [0, 1] (the others
+        keep theirs); a bad value raises ParameterError naming it, nothing changed."""
+        self.set_inputs(activations=values)
+
+    def set_jaw(self, opening=None, protrusion=None):
+        """Target jaw opening (deg, about the TMJ axis) and protrusion (mm, along the
+        occlusal plane) for the next step (solver.face.jaw); None keeps one. Values outside
+        solver.face.jaw.JAW_RANGES, or an anatomy without a jaw, raise ParameterError and
+        change nothing."""
+        if self.face.jaw is None:
+            raise ParameterError(_no_jaw(self.anatomy))
+        self.set_inputs(jaw=(opening, protrusion))
 
     def run(self, progress=False, on_record=None):
         """A standalone run of the scene's schedules: records (list of dicts) at every
@@ -97,6 +111,10 @@ class SceneDriver:
             row["incisor_opening"] = out["incisor_opening"]
         return row
 
+
+def _no_jaw(anatomy):
+    return (f"anatomy {anatomy.name!r} has no jaw (no 'fixed_mandible' node set or teeth "
+            "surfaces)")
 
 
 class Simulation(SceneDriver):
@@ -159,17 +177,6 @@ class Simulation(SceneDriver):
         """The model's terms, by name, in the order the solver walks them."""
         return self.face.term_names
 
-    def set_activations(self, values):
-        """Target activations for the next step: dict muscle -> a in [0, 1] (the others
-        keep theirs); a bad value raises ParameterError naming it, nothing changed."""
-        self.set_inputs(activations=values)
-
-    def set_jaw(self, opening=None, protrusion=None):
-        """Target jaw opening (deg, about the TMJ axis) and protrusion (mm, along the
-        occlusal plane) for the next step (solver.face.jaw); None keeps one. Values outside
-        solver.face.jaw.JAW_RANGES raise ParameterError and change nothing."""
-        self.set_inputs(jaw=(opening, protrusion))
-
     def set_inputs(self, activations=None, jaw=None, undriven="error"):
         """The next step's targets, all checked before any changes (the one place where
         inputs are validated): activations, dict muscle -> a in [0, 1]; jaw, (opening deg,
@@ -192,8 +199,7 @@ class Simulation(SceneDriver):
             if face.jaw is not None:
                 pose = face.jaw.pose(opening, protrusion)
             elif opening or protrusion:
-                raise ParameterError(f"anatomy {self.anatomy.name!r} has no jaw (no "
-                                     "'fixed_mandible' node set or teeth surfaces)")
+                raise ParameterError(_no_jaw(self.anatomy))
         face.set_activations(values)
         if pose is not None:
             face.set_jaw(pose)

@@ -225,14 +225,6 @@ class ReducedSimulation(SceneDriver):
     def jaw(self):
         return self.full.jaw
 
-    def set_activations(self, values):
-        """As Simulation.set_activations."""
-        self.set_inputs(activations=values)
-
-    def set_jaw(self, opening=None, protrusion=None):
-        """As Simulation.set_jaw (and set_inputs below)."""
-        self.set_inputs(jaw=(opening, protrusion))
-
     def release(self):
         self.full.release()
 
