@@ -10,6 +10,7 @@
     python benchmarks/rom_train.py --ship [--workers 2]
     python benchmarks/rom_train.py --accuracy [--scene SCENE] [--model FILE.npz]
                                    [--gestures oop_ris,open,open_round] [--md FILE]
+                                   [--integrators backward_euler,bdf2] [--rom-step 0.005]
 
 SCENE: a built-in scene or a TOML file; the default, `speech` (solver/app/scenes/speech.toml),
 drives all ten muscles, transient, with lip and teeth contact, on the generic face. The model is trained for the
@@ -24,9 +25,10 @@ the `default` scene's (the same key as `speech`'s), with this script's defaults 
 wall-time limit on a run, so that the same commit gives the same model; its meta records
 the command and the commit. tests/test_rom_shipped.py fails when its key is stale.
 
---accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced and the
-full-order model and prints max and RMS errors (mm) in lip aperture and protrusion and
-the wall time of each (docs/realtime.md has its figures, with the commands that made them).
+--accuracy runs the held-out gestures of solver/rom/accuracy.py with the reduced model
+(once per integrator: backward Euler at fixed 1 ms substeps against BDF2 at error-
+controlled ones, in the same call) and the full-order model and prints max and RMS
+errors (mm) in lip aperture and protrusion and the wall time of each (docs/realtime.md has its figures, with the commands that made them).
 """
 
 import argparse
@@ -74,23 +76,34 @@ def accuracy_main(args):
     from solver.entry import open_simulation
     from solver.app.simulation import Simulation
     scene = load(args.scene)
-    rom = open_simulation(scene, fidelity="realtime", rom_model=args.model,
-                          check_every=args.check_every)
-    full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)          # the full model
-    m = rom.rom_meta
-    print(f"model: {m['basis_size']} modes, {m['bricks_selected']} of {m['bricks_total']} "
-          f"bricks, trained on {m['runs']} runs in {m['train_s']:.0f} s")
     names = args.gestures.split(",") if args.gestures else list(GESTURES)
-    rows = compare(rom, full, names)
-    cols = ["gesture", "duration_s", "max_err_aperture_mm", "rms_err_aperture_mm",
-            "max_err_protrusion_mm", "rms_err_protrusion_mm", "full_range_aperture_mm",
-            "full_range_protrusion_mm", "rom_wall_s", "rom_cpu_s", "rom_ms_per_step",
-            "full_wall_s", "full_cpu_s", "rom_rtf", "full_rtf", "rho_max", "fell_back"]
+    rows, full, full_runs = [], None, {}
+    for integrator in args.integrators.split(","):
+        rom = open_simulation(scene, fidelity="realtime", rom_model=args.model,
+                              check_every=args.check_every, integrator=integrator)
+        if full is None:
+            full = Simulation(rom.scene, loaded_anatomy=rom.anatomy)  # the full model
+            m = rom.rom_meta
+            print(f"model: {m['basis_size']} modes, {m['bricks_selected']} of "
+                  f"{m['bricks_total']} bricks, trained on {m['runs']} runs in "
+                  f"{m['train_s']:.0f} s")
+        step = args.rom_step
+        label = (f"{integrator}, substeps <= {rom.stepper.h_max * 1e3:g} ms"
+                 + (f", tol {rom.stepper.tol:g} mm" if rom.stepper.tol else ""))
+        for r in compare(rom, full, names, rom_step=step, full_runs=full_runs):
+            rows.append({"integrator": label, **r})
+        rom.release()
+    cols = ["integrator", "gesture", "duration_s", "max_err_aperture_mm",
+            "rms_err_aperture_mm", "max_err_protrusion_mm", "rms_err_protrusion_mm",
+            "full_range_aperture_mm", "full_range_protrusion_mm", "rom_wall_s", "rom_cpu_s",
+            "rom_ms_per_step", "full_wall_s", "full_cpu_s", "rom_rtf", "full_rtf", "rho_max",
+            "fell_back"]
     report(rows, cols, args.csv)
     if args.md:
         from solver.app.provenance import command, stamp
-        head = (f"Held-out gestures, reduced (1 ms steps) against full order (5 ms): "
-                f"`{command('benchmarks/rom_train.py')}`, {stamp()}; model: "
+        head = (f"Held-out gestures, reduced (caller steps of {args.rom_step * 1e3:g} ms) "
+                f"against full order (5 ms), one process, one reduced run per integrator "
+                f"and gesture: `{command('benchmarks/rom_train.py')}`, {stamp()}; model: "
                 f"{m['basis_size']} modes ({m.get('jaw_modes', 0)} of them from the "
                 f"jaw runs), {m['bricks_selected']} of {m['bricks_total']} bricks.\n\n")
         with open(args.md, "w") as fh:          # stamped before the file is emptied
@@ -135,6 +148,12 @@ def main(argv=None):
     ap.add_argument("--gestures", help="--accuracy: comma-separated gesture names")
     ap.add_argument("--check-every", type=int, default=20,
                     help="--accuracy: substeps between trust checks")
+    ap.add_argument("--integrators", default="backward_euler,bdf2",
+                    help="--accuracy: the reduced model's integrators, each a row per "
+                         "gesture (backward_euler: fixed 1 ms substeps; bdf2: error-"
+                         "controlled, up to 5 ms)")
+    ap.add_argument("--rom-step", type=float, default=5e-3,
+                    help="--accuracy: the reduced model's caller step (s)")
     ap.add_argument("--csv", type=Path, help="--accuracy: write the table as CSV")
     ap.add_argument("--md", type=Path, help="--accuracy: write the table as markdown")
     args = ap.parse_args(argv)

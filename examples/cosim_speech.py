@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from facefmu.cosim import Master, read_system
+from facefmu.cosim import Master, Record, read_system
 from facefmu.speech import (OUTPUTS, TARGETS, duration, missed, records, table,  # noqa: F401
                             tracking)
 from facefmu.speech import load_targets as _load_targets
@@ -79,7 +79,10 @@ def cosimulate(face_fmu, control_fmu, stop, step, face_params=None, control_para
     facefmu.cosim.Result whose rows hold, per step, the target active over [t, t + step],
     the activations applied over it, and the face's outputs at t + step."""
     system = speech_system(face_fmu, control_fmu, step)
-    with Master(system, records(system), echo=_echo) as master:
+    recs = records(system)
+    if (face_params or {}).get("fidelity") == "realtime":     # the full model's share
+        recs.append(Record("rom_full_time", "face", "rom_full_time"))
+    with Master(system, recs, echo=_echo) as master:
         return master.run(stop, {"face": face_params or {}, "control": control_params or {}})
 
 
@@ -191,6 +194,8 @@ def main(argv=None):
     plot(rows, targets, out / "cosim.png")
     print(f"wrote {out / 'cosim.csv'} and {out / 'cosim.png'}")
     if args.fidelity == "realtime":
+        print(f"the full model ran {100 * rows[-1]['rom_full_time'] / stop:.0f} % of the "
+              "simulated time (FaceFMU's rom_full_time: handovers from the reduced model)")
         compare_full(rows, face_fmu, control_fmu, stop, args.step, dict(face), control)
     if n_missed:
         print(f"FAILED: {n_missed} of {len(targets)} targets missed")

@@ -120,6 +120,12 @@ class FaceFMU(Fmi2Slave):
                                        description="fidelity realtime: the times the "
                                                    "reduced model handed over to the full "
                                                    "model so far (0 otherwise)"))
+        self.rom_full_time = 0.0
+        self.register_variable(Real("rom_full_time", causality=Fmi2Causality.output,
+                                    variability=Fmi2Variability.discrete,
+                                    description="fidelity realtime: simulated time the "
+                                                "full model has run so far, after a "
+                                                "handover (s; 0 otherwise)"))
         self._set = set()                       # the parameters the master has set
 
         def fixed(name):
@@ -270,12 +276,14 @@ class FaceFMU(Fmi2Slave):
         self.substeps = int(out["substeps"])
         self.cutbacks = int(out["cutbacks"])
         self.rom_fallbacks = int(out.get("rom_fallbacks", 0))
+        self.rom_full_time = float(out.get("rom_full_time", 0.0))
 
     # -- state ---------------------------------------------------------------------------
     def _get_fmu_state(self):
         state = {name: getattr(self, name) for name in
                  list(MUSCLE_NAMES) + list(JAW_INPUTS) + list(OUTPUT_DESCRIPTIONS)
-                 + ["newton_iterations", "substeps", "cutbacks", "rom_fallbacks", "time"]}
+                 + ["newton_iterations", "substeps", "cutbacks", "rom_fallbacks",
+                    "rom_full_time", "time"]}
         if self.sim is not None:
             state["sim"] = self.sim.get_state()
         return state

@@ -31,6 +31,7 @@ ATTRIBUTES = {
     "substeps": {"min": "0"},
     "tolerance": {"unit": "mm", "min": "1e-12"},
     "max_substep": {"unit": "s", "min": "1e-9"},
+    "rom_full_time": {"unit": "s", "min": "0"},
 }
 
 

@@ -88,14 +88,14 @@ def fmu(tmp_path_factory):
 ROM_DRIVEN = ("RIS", "DLI", "OOP")
 
 
-def _train_tiny(folder, runs, jaw_runs):
+def _train_tiny(folder, runs, jaw_runs, contact=True):
     from solver.app.fidelity import apply_fidelity
     from solver.app.scene import Scene
     from solver.app.simulation import Simulation
     from solver.rom.store import load_model, model_path
     from solver.rom.train import collect, snapshot_tasks, train
-    scene = apply_fidelity(Scene(name="rom_test", driven=ROM_DRIVEN, lip_contact=True,
-                                 teeth_contact=True, fidelity="realtime"), "realtime")
+    scene = apply_fidelity(Scene(name="rom_test", driven=ROM_DRIVEN, lip_contact=contact,
+                                 teeth_contact=contact, fidelity="realtime"), "realtime")
     scene = scene.with_overrides(level="coarse", rows=None)
     full = Simulation(scene)
     path = train(scene, sim=full, runs=runs, duration=0.05, interval=0.005, seed=3,
@@ -117,6 +117,13 @@ def trained(tmp_path_factory):
     snapshots; none read from or kept in the user's snapshot cache). The model is saved
     as model.npz and under its key's name in `folder` (for FACEFMU_ROM_DIR look-ups)."""
     return _train_tiny(tmp_path_factory.mktemp("rom"), 3, 0)
+
+
+@pytest.fixture(scope="session")
+def trained_smooth(tmp_path_factory):
+    """As `trained`, without lip and teeth contact (2 runs): a smooth reduced model, for
+    the integrators' order of convergence."""
+    return _train_tiny(tmp_path_factory.mktemp("rom_smooth"), 2, 0, contact=False)
 
 
 @pytest.fixture(scope="session")

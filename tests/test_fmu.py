@@ -45,8 +45,9 @@ def test_model_description_passes_fmpy_validate_and_has_units(fmu):
     for p in ("anatomy", "level", "scene", "half_face", "tolerance", "max_substep", "fidelity"):
         assert variables[p].get("causality") == "parameter", p
     outputs = root.find("ModelStructure").find("Outputs")
-    assert len(outputs) == 11 and all(u.get("dependencies") == "" for u in outputs)
+    assert len(outputs) == 12 and all(u.get("dependencies") == "" for u in outputs)
     assert variables["rom_fallbacks"].get("causality") == "output"
+    assert variables["rom_full_time"].get("causality") == "output"
     assert variables["contact_force"][0].get("unit") == "N"
     jaw = variables["jaw_opening"]
     assert jaw.get("causality") == "input"

@@ -104,6 +104,11 @@ def test_trust_check_fires_far_outside_the_training_range(trained):
                 break
     assert rom.mode == "full" and rom.trust_history[-1][1] > rom.trust_threshold
     assert rom.outputs()["rom_fallbacks"] == 1                  # counted (an FMU output)
+    # the full model's share of the simulated time: the step it redid, then the next one
+    assert rom.outputs()["rom_full_time"] == pytest.approx(0.005, abs=1e-12)
+    assert rom.step(rom.t + 0.005).converged
+    assert rom.outputs()["rom_full_time"] == pytest.approx(0.010, abs=1e-12)
+    assert rom.get_state()["full_time"] == pytest.approx(0.010, abs=1e-12)
 
 
 def test_a_look_at_the_state_leaves_the_run_as_it_was(trained):

@@ -42,7 +42,8 @@ def states(request):
     (trained or trained_jaw)."""
     jaw = request.param == "jaw"
     model = request.getfixturevalue("trained_jaw" if jaw else "trained")
-    rom = _rom(model, method="reference", damping_refresh=1, trust="off")
+    rom = _rom(model, method="reference", integrator="backward_euler", damping_refresh=1,
+               trust="off")
     out = []
     _drive(rom, _jaw_task(model) if jaw else model["tasks"][0], each=lambda s: out.append(
         (s.q.copy(), s.face.activation.start.copy(), np.array(s.jaw))))
@@ -149,8 +150,9 @@ def test_reduced_contact_gives_the_terms_forces_along_a_gesture(states):
 def test_fast_method_follows_the_reference_method(request, which):
     trained = request.getfixturevalue(which)
     task = trained["tasks"][0] if which == "trained" else _jaw_task(trained)
-    ref = _rom(trained, method="reference", damping_refresh=1, trust="off")
-    fast = _rom(trained, trust="off")
+    ref = _rom(trained, method="reference", integrator="backward_euler", damping_refresh=1,
+               trust="off")
+    fast = _rom(trained, integrator="backward_euler", trust="off")
     a, b = _drive(ref, task), _drive(fast, task)
     for key in ("lip_aperture", "lip_protrusion"):
         assert max(abs(x[key] - y[key]) for x, y in zip(a, b)) < 5e-4, key
@@ -335,3 +337,37 @@ def test_a_jaw_pose_outside_the_training_envelope_falls_back_with_a_warning(trai
         rom.set_jaw(**{name[4:]: value})
     assert rom.mode == "full"
     assert rom.step(0.002).converged and rom.jaw[JAW_INPUTS.index(name)] == value
+
+
+def _rom_smooth(trained, h, integrator, span=0.04):
+    """The ROM's lip outputs (aperture, protrusion; mm) every 5 ms of a smooth gesture (the
+    tiny model's three muscles along 1 - cos over span) at fixed substeps h with caller
+    steps of h, Newton converged tightly."""
+    rom = _rom(trained, integrator=integrator, tol=None, h=h, utol=1e-9, trust="off")
+    n, every = int(round(span / h)), int(round(0.005 / h))
+    rows = []
+    for k in range(1, n + 1):
+        s = 0.5 * (1.0 - np.cos(np.pi * k * h / span))
+        rom.set_activations({"OOP": 0.5 * s, "RIS": 0.4 * s, "DLI": 0.4 * s})
+        assert rom.step(k * h).converged
+        if k % every == 0:
+            out = rom.outputs()
+            rows.append([out["lip_aperture"], out["lip_protrusion"]])
+    return np.array(rows)
+
+
+def test_reduced_bdf2_converges_at_second_order_and_backward_euler_at_first(trained_smooth):
+    """The reduced model's own time error, against its tiny-step run (a model without
+    contact, whose penalty's kinks would cap the order): the largest error of the lip
+    outputs falls as h^2 with BDF2 (fitted slope >= 1.8) and as h with backward Euler
+    (slope < 1.5)."""
+    trained = trained_smooth
+    hs = np.array([0.005, 0.0025, 0.00125])
+    slopes = {}
+    for integrator in ("bdf2", "backward_euler"):
+        ref = _rom_smooth(trained, 0.00125 / 8, integrator)
+        assert np.ptp(ref[:, 0]) > 0.3 or np.ptp(ref[:, 1]) > 0.3      # the lips moved
+        errs = [np.abs(_rom_smooth(trained, h, integrator) - ref).max() for h in hs]
+        slopes[integrator] = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert slopes["bdf2"] >= 1.8, slopes
+    assert slopes["backward_euler"] < 1.5, slopes

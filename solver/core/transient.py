@@ -97,6 +97,18 @@ def coefficients(h, h_prev):
     return (1.0 + 2.0 * w) / (1.0 + w), -(1.0 + w), w * w / (1.0 + w)
 
 
+def growth(err, err_prev, order, pi=True):
+    """The factor for the next substep's size from its error err (weighted norm, accepted
+    at <= 1) and the last accepted one err_prev, for a method of that order: the PI
+    controller (pi; else the elementary one, after a rejection), within [0.3, GROWTH]."""
+    k = order + 1
+    if err == 0.0:
+        return GROWTH
+    if not pi:
+        return min(GROWTH, max(0.3, 0.9 * err ** (-1.0 / k)))
+    return min(GROWTH, max(0.3, 0.9 * err ** (-0.7 / k) * err_prev ** (0.4 / k)))
+
+
 ON_PATH = 0.1    # predicted prescribed DOFs within this fraction of their move: put on target
 
 
@@ -252,12 +264,8 @@ class Transient:
     def _grow(self, err, rejected=False):
         """The factor for the next step size from the error err (weighted norm, accepted
         at <= 1; module docstring)."""
-        k = self.order + 1
-        if err == 0.0:
-            return GROWTH
-        if rejected or self.method == "backward_euler":
-            return min(GROWTH, max(0.3, 0.9 * err ** (-1.0 / k)))
-        return min(GROWTH, max(0.3, 0.9 * err ** (-0.7 / k) * self.err_prev ** (0.4 / k)))
+        return growth(err, self.err_prev, self.order,
+                      pi=not rejected and self.method != "backward_euler")
 
     def advance(self, t_end):
         """Integrate from self.t to t_end (> self.t); returns StepStats. On failure the

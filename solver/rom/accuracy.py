@@ -10,8 +10,8 @@ Gestures (none is a training pattern; training draws random patterns, solver.rom
   0 -> 0.5 over 0-0.1 s, then closes to 3 deg while OOP 0 -> 0.6 over 0.15-0.25 s (an
   open vowel, then a rounded one).
 
-Each runs with the reduced model (caller steps of `rom_step`, 1 ms: as an FMU master
-stepping at 1 ms) and with the full-order model of the same scene (the realtime knobs:
+Each runs with the reduced model (caller steps of `rom_step`, 5 ms: as the main job's
+FMU master) and with the full-order model of the same scene (the realtime knobs:
 coarse generic half face, loose tolerances; caller steps of `full_step`), both from rest.
 Errors: over the full run's record times, max and RMS of |ROM - full| in lip aperture
 and lip protrusion (mm, Simulation.outputs()). Times: wall and process CPU time of the
@@ -52,10 +52,13 @@ def _timed(sim, schedules, duration, step):
     return rows, time.perf_counter() - w0, time.process_time() - c0
 
 
-def compare(rom, full, gestures=None, rom_step=1e-3, full_step=5e-3):
+def compare(rom, full, gestures=None, rom_step=5e-3, full_step=5e-3, full_runs=None):
     """Rows (dicts) per gesture: errors (mm) and times (s). rom: a ReducedSimulation,
-    full: the full-order Simulation of the same scene; both are reset to rest."""
+    full: the full-order Simulation of the same scene; both are reset to rest. full_runs:
+    a dict {gesture: (rows, wall, cpu)} of full runs already made (filled here), so that
+    several reduced models are compared with one full run per gesture."""
     out = []
+    full_runs = {} if full_runs is None else full_runs
     zero_rom, zero_full = rom.get_state(), full.get_state()
     for name in gestures or GESTURES:
         duration, sched = GESTURES[name]
@@ -66,7 +69,9 @@ def compare(rom, full, gestures=None, rom_step=1e-3, full_step=5e-3):
         rom.mode = "rom"
         full.set_state(zero_full)
         r_rows, r_wall, r_cpu = _timed(rom, sched, duration, rom_step)
-        f_rows, f_wall, f_cpu = _timed(full, sched, duration, full_step)
+        if name not in full_runs:
+            full_runs[name] = _timed(full, sched, duration, full_step)
+        f_rows, f_wall, f_cpu = full_runs[name]
         every = int(round(full_step / rom_step))
         r_rows = r_rows[::every]
         row = {"gesture": name, "duration_s": duration}

@@ -90,16 +90,22 @@ class OnlineOperator:
         self.stiff = stiff
         self.kt, self.ks = np.zeros((r, r)), np.zeros((len(stiff), r, r))
 
-    def prepare_damping(self, q_n, bd):
-        """The damping force bd V^T K_n V (q - q_n) of the coming evaluations: K_n (the
-        cubature's passive small-strain stiffness) on the shape X + V q_n. bd = beta / h
-        (0: none). Returns the smallest det F of that shape."""
+    def prepare_damping(self, q_n, bd, start=True, ref=None):
+        """The damping force bd V^T K_n (u - u_d) of the coming evaluations: K_n (the
+        cubature's passive small-strain stiffness) on the shape X + V q_n + L (L the
+        lifting at the substep's start, or with start False its end); u_d that shape, or
+        with ref = (q_d (r,), L_d (n, 3)) V q_d + L_d. bd = c beta (0: none). Returns the
+        smallest det F of that shape."""
         self.bd, self.q_n = float(bd), q_n
         if not bd:
             return 1.0
         op = self.op
-        return damping_geometry(self.nodal(q_n, start=True), self.lconn, op.dndX, op.wgp,
+        jmin = damping_geometry(self.nodal(q_n, start=start), self.lconn, op.dndX, op.wgp,
                                 self.ue_n, self.dxn, self.wn, self.dvn)
+        if ref is not None:
+            u_d = (self.Vb @ ref[0]).reshape(-1, 3) + ref[1][self.bnodes]
+            self.ue_n[:] = u_d[self.lconn].reshape(len(self.lconn), 24)
+        return jmin
 
     def nodal(self, q, start=False):
         """(b, 3) the displacements V_b q + L_b of the cubature's nodes, L the operator's

@@ -8,13 +8,14 @@ scene's key in the folders `rom_dirs` (e.g. the resources of an FMU built with
 with the project (solver/rom/models); where there is none,
 ModelNotTrained names the training command. Its knobs are one ReducedOptions.
 
-Time stepping (solver.rom.stepper): backward Euler in reduced coordinates at fixed
-substeps of at most h = 1 ms, activations ramping within a caller's step as in the full
-model (hold "ramp"); method "fast" (default: modified Newton with a frozen reduced
-tangent on solver.rom.online) or "reference" (the implementation the fast one is tested
-against). Converged when |dq| <= utol (mm; default 1e-2). Damping C = alpha M + beta K_n
-with K_n hyper-reduced by the cubature and rebuilt every `damping_refresh` substeps
-(damping="current", default), or the constant V^T K_0 V (damping="rest").
+Time stepping (solver.rom.stepper): variable-step BDF2 in reduced coordinates at
+error-controlled substeps of at most h = 5 ms (tol, mm), or backward Euler at fixed
+substeps of at most 1 ms (integrator "backward_euler", tol None), activations ramping
+within a caller's step as in the full model (hold "ramp"); method "fast" (default:
+modified Newton with a frozen reduced tangent on solver.rom.online) or "reference" (the
+implementation the fast one is tested against; backward Euler). Converged when |dq| <=
+utol (mm; default 1e-2). Damping C = alpha M + beta K_n with K_n hyper-reduced by the
+cubature (damping="current", default), or the constant V^T K_0 V (damping="rest").
 
 The jaw: u = V q + L(p), the lifting L of the jaw's pose p (solver.rom.lifting), ramping
 within a step as in the full model. A target pose outside the poses the model's
@@ -50,7 +51,7 @@ from solver.core.units import kg_per_m3
 from solver.face.jaw import JAW_INPUTS, JAW_UNITS
 from solver.face.terms.contact import TOLERANCE
 from solver.rom.reduced import ReducedOperator
-from solver.rom.stepper import H_MAX, METHODS, Stepper
+from solver.rom.stepper import H_MAX, H_MAX_BE, INTEGRATORS, METHODS, Stepper
 from solver.rom.store import find_model, load_model
 from solver.rom.outputs import LipOutputs
 from solver.rom.trust import TrustCheck
@@ -66,8 +67,11 @@ class TrustWarning(UserWarning):
 @dataclass(frozen=True)
 class ReducedOptions:
     """The reduced model's knobs. trust: 'fallback' | 'warn' | 'off'; check_every:
-    substeps between trust checks; h: largest substep (s; None: H_MAX, or the scene's
-    max_substep where that is smaller); utol (mm), max_iter: the reduced Newton's; method
+    substeps between trust checks; integrator 'bdf2' | 'backward_euler'; tol: the
+    substeps' absolute error tolerance (mm; None: fixed substeps of h; backward Euler
+    takes none); h: largest substep (s; None: H_MAX (BDF2) or H_MAX_BE (backward Euler),
+    or the scene's max_substep where that is smaller); utol (mm), max_iter: the reduced
+    Newton's; method
     'fast' (default) or 'reference' with its own knobs (refresh; rate, contact_delta,
     max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant) or 'current'
     (K_n by the cubature on the shape at the start of each substep; the reference method
@@ -75,7 +79,9 @@ class ReducedOptions:
     construction (ReducedSimulation.warmup)."""
 
     trust: str = "fallback"
-    check_every: int = 100
+    check_every: int = 20
+    integrator: str = "bdf2"
+    tol: float | None = 0.1
     h: float | None = None
     refresh: int = 4
     utol: float = 1e-2
@@ -96,6 +102,11 @@ class ReducedOptions:
             raise ParameterError(f"trust = {self.trust!r} is not one of {TRUST_MODES}")
         if self.method not in METHODS:
             raise ParameterError(f"method = {self.method!r} is not one of {METHODS}")
+        if self.integrator not in INTEGRATORS:
+            raise ParameterError(f"integrator = {self.integrator!r} is not one of "
+                                 f"{INTEGRATORS}")
+        if self.tol is not None and not (isinstance(self.tol, (int, float)) and self.tol > 0):
+            raise ParameterError(f"tol = {self.tol!r} must be a number > 0 (mm) or None")
 
 
 OPTION_NAMES = frozenset(f.name for f in fields(ReducedOptions))
@@ -142,7 +153,8 @@ class ReducedSimulation(SceneDriver):
             arrays, meta = load_model(rom_model)
         self.rom_meta = meta
         self.trust, self.check_every = trust, int(check_every)
-        h = min(H_MAX, sc.max_substep) if h is None else h
+        bdf2 = opts.integrator == "bdf2"
+        h = min(H_MAX if bdf2 else H_MAX_BE, sc.max_substep) if h is None else h
         self.h_max, self.utol, self.max_iter = h, utol, max_iter
         self.trust_threshold = float(arrays["trust_threshold"][0])
         V = arrays["V"]
@@ -154,7 +166,8 @@ class ReducedSimulation(SceneDriver):
                                   m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
         self.stepper = Stepper(self.op, M_r, alpha, beta, opts.damping, opts.damping_refresh,
                                h, utol, max_iter, opts.method, opts.refresh, opts.rate,
-                               opts.contact_delta, opts.max_frozen, opts.kb_every)
+                               opts.contact_delta, opts.max_frozen, opts.kb_every,
+                               opts.integrator, opts.tol if bdf2 else None)
         r = V.shape[1]
         self.q, self.v_r = np.zeros(r), np.zeros(r)
         self._substeps = 0
@@ -162,6 +175,7 @@ class ReducedSimulation(SceneDriver):
             TrustCheck(full, kg_per_m3(sc.density), alpha, beta, m_scale, opts.damping)
         self._outputs = LipOutputs(self.face, V)
         self.fallbacks = 0               # handovers to the full model (_to_full)
+        self.full_time = 0.0             # s of simulated time the full model has run
         self.trust_exceeded = {}         # trust "warn": {cause: steps past its limit}
         self.trust_history = []          # (t, rho) of every check
         if opts.warmup:
@@ -190,8 +204,9 @@ class ReducedSimulation(SceneDriver):
             self.checker = TrustCheck(self.full, kg_per_m3(sc.density), self.stepper.alpha,
                                       self.stepper.beta, 1.0 if sc.inertia else 0.0,
                                       self.stepper.damping)
-        q_n, v_n, h = self.stepper.last
-        return self.checker.residual(self.op.V, self.q, q_n, v_n, h, self.op.L, self.op.L_n)
+        q_n, v_n, h, stage = self.stepper.last
+        return self.checker.residual(self.op.V, self.q, q_n, v_n, h, self.op.L, self.op.L_n,
+                                     stage)
 
     # -- what the held full-order Simulation answers --------------------------------------
     @property
@@ -238,10 +253,18 @@ class ReducedSimulation(SceneDriver):
         self.mode = "full"
         self.fallbacks += 1
 
+    def _full_step(self, t_end):
+        """The full model's step to t_end, its simulated time counted in full_time."""
+        t0 = self.full.t
+        stats = self.full.step(t_end)
+        if stats.converged:
+            self.full_time += float(t_end) - t0
+        return stats
+
     def step(self, t_end):
         """Advance to t_end; StepStats (converged False leaves the state at its start)."""
         if self.mode == "full":
-            return self.full.step(t_end)
+            return self._full_step(t_end)
         if not (np.isfinite(t_end) and t_end > self.t):
             raise ParameterError(f"step end {t_end!r} must be after the current time "
                                  f"{self.t!r}")
@@ -272,7 +295,7 @@ class ReducedSimulation(SceneDriver):
                               "the full model", TrustWarning, stacklevel=2)
                 self.q, self.v_r, self._substeps = start
                 self._to_full(start[0], start[1])
-                stats = self.full.step(t_end)
+                stats = self._full_step(t_end)
                 stats.reason = (stats.reason + "; " if stats.reason else "") + \
                     "fell back to the full model"
                 return stats
@@ -320,7 +343,8 @@ class ReducedSimulation(SceneDriver):
     # -- outputs and state ---------------------------------------------------------------
     def outputs(self):
         if self.mode == "full":
-            return {**self.full.outputs(), "rom_fallbacks": self.fallbacks}
+            return {**self.full.outputs(), "rom_fallbacks": self.fallbacks,
+                    "rom_full_time": self.full_time}
         L = self._lift()
         if "muscle_strains" in self.scene.record:
             u = self.op.displacement(self.q, L)
@@ -335,6 +359,7 @@ class ReducedSimulation(SceneDriver):
         out["substeps"] = self.last.substeps
         out["cutbacks"] = self.last.cutbacks
         out["rom_fallbacks"] = self.fallbacks
+        out["rom_full_time"] = self.full_time
         return out
 
     @property
@@ -355,6 +380,7 @@ class ReducedSimulation(SceneDriver):
     def get_state(self, fresh=True):
         if self.mode == "full":
             return {**self.full.get_state(fresh), "mode": "full", "fallbacks": self.fallbacks,
+                    "full_time": self.full_time,
                     "trust_exceeded": self._exceeded()}
         if fresh:
             self.stepper.reset_caches()      # the next step starts afresh, as after set_state
@@ -362,12 +388,27 @@ class ReducedSimulation(SceneDriver):
         return {"t": self.t, "u": self.op.displacement(self.q, L).copy(),
                 "v": self.v.copy(),
                 "activation": self.face.activation.start.copy(), "jaw": np.array(self.jaw),
-                "h": self.h_max, "fallbacks": self.fallbacks,
+                "h": self.stepper.h, "err_prev": self.stepper.err_prev,
+                "fallbacks": self.fallbacks, "full_time": self.full_time,
                 "trust_exceeded": self._exceeded(),
-                "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom"}
+                "q": self.q.copy(), "v_r": self.v_r.copy(), "mode": "rom",
+                **self._history_state()}
+
+    def _history_state(self):
+        """The stepper's BDF2 history as plain arrays: q_prev, v_prev (r,; empty: none),
+        h_prev (s; 0: none) and the lifting one substep back (L_prev (n, 3); empty when
+        it is the current one: the jaw did not move)."""
+        hist = self.stepper.history
+        if hist is None:
+            return {"q_prev": np.zeros(0), "v_prev": np.zeros(0), "h_prev": 0.0,
+                    "L_prev": np.zeros((0, 3))}
+        same = hist[3] is self.op.L or np.array_equal(hist[3], self._lift())
+        return {"q_prev": hist[0].copy(), "v_prev": hist[1].copy(), "h_prev": float(hist[2]),
+                "L_prev": np.zeros((0, 3)) if same else np.array(hist[3])}
 
     def set_state(self, state):
         self.fallbacks = int(state.get("fallbacks", self.fallbacks))
+        self.full_time = float(state.get("full_time", self.full_time))
         if "trust_exceeded" in state:
             counts = np.asarray(state["trust_exceeded"], dtype=np.int64).ravel()
             self.trust_exceeded = {c: int(n) for c, n in zip(TRUST_CAUSES, counts) if n}
@@ -384,4 +425,16 @@ class ReducedSimulation(SceneDriver):
         self.v_r = np.array(state["v_r"], float) if "v_r" in state else \
             V.T @ np.asarray(state["v"], float).ravel()
         self.face.restore_inputs(state["activation"], state.get("jaw", (0.0, 0.0)))
-        self.stepper.reset_caches()
+        st = self.stepper
+        if "h" in state:
+            st.h = float(state["h"])
+        st.err_prev = float(state.get("err_prev", 1.0))
+        h_prev = float(state.get("h_prev", 0.0))
+        if h_prev > 0.0:
+            # none stored: the lifting one substep back was the restored pose's
+            L_prev = np.asarray(state.get("L_prev", np.zeros((0, 3))), float)
+            st.history = (np.array(state["q_prev"], float), np.array(state["v_prev"], float),
+                          h_prev, self._lift() if not L_prev.size else L_prev.reshape(-1, 3))
+        else:
+            st.history = None
+        st.reset_caches()

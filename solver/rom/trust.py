@@ -1,11 +1,12 @@
 r"""The trust check of a reduced state: the full-order residual of u = V q + L, relative
 (L: the jaw's lifting, solver.rom.lifting).
 
-After a substep from (q_n, v_n) with step h, on the free DOFs, with inertia and damping
-(C = alpha M + beta K_n, K_n on all bricks at u_n; K_0 with damping "rest"):
+After a substep with v = c (u - u_d), a = c^2 (u - u_m) (solver.rom.stepper; backward
+Euler c = 1 / h, u_d = u_n, u_m = u_n + h v_n), on the free DOFs, with inertia and damping
+(C = alpha M + beta K_n, K_n on all bricks at the stepper's damping shape; K_0 with
+damping "rest"):
 
-    R = M (u - u_n - h v_n) / h^2 + C (u - u_n) / h + f_int(u) + cables + stiffening
-        + contact,
+    R = c^2 M (u - u_m) + c C (u - u_d) + f_int(u) + cables + stiffening + contact,
     rho = |R_free| / max(|f_tissue|, |f_cables|, 1e-3 N),
 
 the cables and contact by the full model's own terms (solver.core.system.System, built once, at
@@ -100,23 +101,34 @@ class TrustCheck:
             raise FloatingPointError("an inverted brick in the damping's shape")
         return self._kdu.ravel().copy()
 
-    def residual(self, V, q, q_n, v_n, h, L=0.0, L_n=0.0):
+    def residual(self, V, q, q_n, v_n, h, L=0.0, L_n=0.0, stage=None):
         """rho (module docstring) of u = V q + L after the substep from (q_n, v_n), step h
         (L, L_n (n, 3): the lifting at the substep's end and start; the cables and the
-        teeth at the jaw's target pose, the end of the caller's step)."""
+        teeth at the jaw's target pose, the end of the caller's step). stage: the
+        substep's solver.rom.stepper.StageR (BDF2: v = c (u - u_d), a = c^2 (u - u_m),
+        u_d = V q_d + L_d, u_m = V q_m + L_d, K_n on the predicted shape V p + L); None:
+        backward Euler's c = 1 / h, u_d = u_n, u_m = u_n + h V v_n, K_n at u_n."""
         u = V @ q + np.ravel(L)
-        un = V @ q_n + np.ravel(L_n)
+        if stage is None or stage.coef[2] == 0.0:
+            c = 1.0 / h
+            u_d = V @ q_n + np.ravel(L_n)
+            u_m, shape = u_d + h * (V @ v_n), u_d
+        else:
+            c = stage.c
+            L_d = np.ravel(stage.L_d)
+            u_d, u_m = V @ stage.q_d + L_d, V @ stage.q_m + L_d
+            shape = V @ stage.p + np.ravel(L)
         f = self.internal_forces(u)
         f_cab = self.f_cables
-        du = (u - un) / h
+        du = c * (u - u_d)
         if self.damping == "current" and self.beta:
-            kdu = self.passive_apply(un, du)
+            kdu = self.passive_apply(shape, du)
         elif self.beta:
             kdu = self.K0 @ du
         else:
             kdu = 0.0 * du
-        R = f + self.m_scale * self.m3 * (u - un - h * (V @ v_n)) / h ** 2 \
-            + self.alpha * self.m3 * du + self.beta * kdu
+        R = f + self.m_scale * (c * c) * self.m3 * (u - u_m) + self.alpha * self.m3 * du \
+            + self.beta * kdu
         free = self.free
         scale = max(float(np.linalg.norm((f - f_cab)[free])),
                     float(np.linalg.norm(f_cab[free])), 1e-3)
