@@ -26,6 +26,14 @@ def _rom(trained, **kw):
                            loaded_anatomy=trained["full"].anatomy, **kw)
 
 
+def _reference(trained):
+    """The tiny model stepped by the reference (tests/rom_reference.py): backward Euler
+    at 1 ms, full Newton, the damping matrix rebuilt every substep, no trust check."""
+    from rom_reference import reference_simulation
+    return reference_simulation(_rom(trained, integrator="backward_euler", trust="off"),
+                                damping_refresh=1)
+
+
 def _drive(sim, task, duration=None, step=1e-3, each=None):
     from solver.rom.train import drive
     return drive(sim, task["schedules"], duration or task["duration"], step, each)
@@ -38,12 +46,11 @@ def _jaw_task(trained):
 @pytest.fixture(scope="module", params=["pattern", "jaw"])
 def states(request):
     """(q, activations, jaw pose) along the first training pattern of `trained`, and along
-    the one of `trained_jaw` that opens the jaw, reduced (reference method); and the model
+    the one of `trained_jaw` that opens the jaw, reduced (the reference); and the model
     (trained or trained_jaw)."""
     jaw = request.param == "jaw"
     model = request.getfixturevalue("trained_jaw" if jaw else "trained")
-    rom = _rom(model, method="reference", integrator="backward_euler", damping_refresh=1,
-               trust="off")
+    rom = _reference(model)
     out = []
     _drive(rom, _jaw_task(model) if jaw else model["tasks"][0], each=lambda s: out.append(
         (s.q.copy(), s.face.activation.start.copy(), np.array(s.jaw))))
@@ -150,8 +157,7 @@ def test_reduced_contact_gives_the_terms_forces_along_a_gesture(states):
 def test_fast_method_follows_the_reference_method(request, which):
     trained = request.getfixturevalue(which)
     task = trained["tasks"][0] if which == "trained" else _jaw_task(trained)
-    ref = _rom(trained, method="reference", integrator="backward_euler", damping_refresh=1,
-               trust="off")
+    ref = _reference(trained)
     fast = _rom(trained, integrator="backward_euler", trust="off")
     a, b = _drive(ref, task), _drive(fast, task)
     for key in ("lip_aperture", "lip_protrusion"):

@@ -1,52 +1,32 @@
-r"""The reduced operator: forces and tangents of a face model in reduced coordinates.
-
-This is the reference implementation of the fast online step (solver.rom.online: the
-same quantities, checked against it by tests/test_rom_online.py), also used in training.
+r"""The reduced operator's data: a face model's basis, cubature, cables and jaw lifting in
+reduced coordinates, which the online step (solver.rom.online, solver.rom.stepper) and
+training (solver.rom.train) share.
 
 With the basis V (3 n, r) (orthonormal on the free DOFs, zero rows on the constrained
 ones) the displacements are u = V q + L(p), L the jaw's prescribed motion at its pose p
-(solver.rom.lifting; 0 with the jaw closed). Backward Euler from (q_n, v_n) with step h, the
-same scheme as the full model (solver.core.transient), projected (Galerkin):
-
-    R(q) = M_r (q - q_n - h v_n) / h^2 + C_r (q - q_n) / h
-           + f_bricks(q, a) + f_cables(q, a) + f_contact(q) = 0,
-    dR/dq = M_r / h^2 + C_r / h + K_bricks + K_cables + K_contact,
+(solver.rom.lifting; 0 with the jaw closed). Galerkin projection of the full model's
+terms (the derivation: docs/method.md, 'Reduced-order model'):
 
 * inertia: M_r = V^T M V (lumped M, exact);
 * damping: C_r = alpha M_r + beta V^T K_n V, K_n the passive tissue's small-strain
-  stiffness on the shape at the start of the substep by the cubature
-  (passive_stiffness), as the full model (solver/core/terms/inertia.py); or the constant rest
-  one, K_0 (damping "rest"). A moving jaw adds beta V^T K_n (L(p) - L(p_n)) / h
-  (lifting_damping). The stepping (solver.rom.stepper) decides when it is built;
-  the fast online step (solver.rom.online) applies it matrix-free;
+  stiffness on a shape of the substep by the cubature (passive_stiffness), as the full
+  model (solver/core/terms/inertia.py); or the constant rest one, K_0 (damping "rest"),
+  to which a moving jaw adds beta V^T K_n (L(p) - L(p_n)) / h (lifting_damping);
 * tissue and activation stiffening: the ECSW cubature (solver.rom.ecsw) over the selected
-  bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e) (solver.rom.kernels);
-* cables (all, exactly): cable c pulls its end points x_p, x_q, with
-  x_q - x_p = d0_c(p) + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a) (3, r); with l, n, the
-  tension T = AE (l / L0 - 1 + e_c(a))^+ (solver.core.kernels.cable):
-  f_r = sum_c T D_c^T n, K_r = sum_c D_c^T (AE/L0 n n^T + T/l (I - n n^T)) D_c;
-* contact (reduced contact): the penalty contact terms themselves (solver.face.terms.contact),
-  evaluated on displacements reconstructed at their slave and master nodes only, their
-  element forces and tangents projected with the rows of V of those nodes:
-  f_r = sum_b V_b^T f_b, K_r = sum_b V_b^T K_b V_b.
+  bricks, sum_e w_e V_e^T (f_e + s_e(a) f^s_e): their V_e, parameters and stiffening
+  weights (stiffening_factors);
+* cables (all, exactly): x_q - x_p = d0_c(p) + D_c q, D_c = sum_a (w_qa V_a - w_pa V_a)
+  (3, r), the active strain a_m * cab_unit of each;
+* contact: the scene's contact terms, which solver.rom.contact evaluates on their nodes.
+
+tests/rom_reference.py evaluates these forces and tangents the plain way (the general
+kernels, the contact terms' own assemble()): the oracle of the fast online step.
 """
 
 import numpy as np
 
-from solver.core.assembly import block_dofs
-from solver.core.terms.base import State
 from solver.rom.kernels import reduced_bricks
 from solver.rom.lifting import Lifting
-
-
-class _Capture:
-    """An Assembly stand-in for the contact terms: keeps their element blocks."""
-
-    def __init__(self, need_k):
-        self.need_k, self.energy, self.blocks = need_k, 0.0, []
-
-    def add_block(self, block, fe, ke=None, rows=None):
-        self.blocks.append((block, fe, ke, rows))
 
 
 class ReducedOperator:
@@ -75,8 +55,6 @@ class ReducedOperator:
         self._stiffening_setup(face)
         self._cables_setup(face)
         self.contact = list(sim.contact)
-        self._contact_setup()
-        self.fr, self.kr = np.zeros(self.r), np.zeros((self.r, self.r))
         self.lifting = Lifting(face, conn, face.cables)
         self.set_pose((0.0, 0.0), (0.0, 0.0))
 
@@ -139,86 +117,6 @@ class ReducedOperator:
         self.cab_unit = np.array([props.active_strain(MUSCLE_NAMES[m], 1.0)
                                   for m in cab.muscle])
         self.ncab = len(self.L0)
-
-    def _contact_setup(self):
-        self.cblocks = []              # per term, per block: (k, 3 nloc, r) basis rows
-        nodes = []
-        for term in self.contact:
-            bl = term.blocks()
-            self.cblocks.append([np.ascontiguousarray(
-                self.V[block_dofs(b)]) for b in bl])
-            nodes += [np.asarray(b).ravel() for b in bl]
-        self.cnodes = np.unique(np.concatenate(nodes)) if nodes else np.zeros(0, np.int64)
-        self.Vc = np.ascontiguousarray(self.Vn[self.cnodes])
-        self._uc = np.zeros((self.mesh.n_nodes, 3))
-
-    # -- evaluation ----------------------------------------------------------------------
-    def bricks_part(self, q, a, need_k):
-        """(f_r, K_r or None, min det F) of the cubature at q for activations a (10,)."""
-        s = self.stiffening_factors(a)
-        jmin = reduced_bricks(q, self.Ve, self.le, self.weights, self.dndX, self.wgp,
-                              self.params,
-                              self.form, self.sparams, s, need_k, self.fr, self.kr)
-        return self.fr.copy(), (self.kr.copy() if need_k else None), jmin
-
-    def cables_part(self, q, a, need_k):
-        if self.ncab == 0:
-            return np.zeros(self.r), (np.zeros((self.r, self.r)) if need_k else None)
-        d = self.d0 + self.D @ q                                   # (c, 3)
-        l = np.sqrt((d * d).sum(axis=1))
-        n = d / l[:, None]
-        s = l / self.L0 - 1.0 + a[self.cab_muscle] * self.cab_unit
-        on = s > 0.0
-        T = np.where(on, self.AE * s, 0.0)
-        self.tension = T
-        Dn = np.einsum("cir,ci->cr", self.D[on], n[on])            # (c_on, r)
-        f = Dn.T @ T[on]
-        if not need_k:
-            return f, None
-        Ton, lon = T[on], l[on]
-        # D^T (AE/L0 - T/l) n n^T D + T/l D^T D
-        K = (Dn.T * ((self.AE[on] / self.L0[on]) - Ton / lon)) @ Dn
-        Dw = self.D[on] * np.sqrt(Ton / lon)[:, None, None]
-        K += np.einsum("cir,cis->rs", Dw, Dw)
-        return f, K
-
-    def reconstruct_contact(self, q):
-        """(n, 3) displacements filled at the contact nodes only (zero elsewhere)."""
-        self._uc[self.cnodes] = self.Vc @ q + self.L[self.cnodes]
-        return self._uc
-
-    def contact_part(self, q, need_k, t=0.0):
-        f = np.zeros(self.r)
-        K = np.zeros((self.r, self.r)) if need_k else None
-        if not self.contact:
-            return f, K
-        st = State(self.reconstruct_contact(q), self.lam, t, {})
-        for term, vb in zip(self.contact, self.cblocks):
-            cap = _Capture(need_k)
-            term.assemble(st, cap, list(range(len(vb))))
-            for block, fe, ke, rows in cap.blocks:
-                Vb = vb[block] if rows is None else vb[block][rows]
-                if len(Vb) == 0:
-                    continue
-                if rows is None:                     # all slaves: keep the active ones
-                    on = np.flatnonzero(np.abs(fe).max(axis=1) > 0)
-                    Vb, fe = Vb[on], fe[on]
-                    ke = ke[on] if ke is not None else None
-                if len(Vb) == 0:
-                    continue
-                Vf = Vb.reshape(-1, self.r)
-                f += Vf.T @ fe.ravel()
-                if need_k and ke is not None:
-                    K += Vf.T @ (ke @ Vb).reshape(-1, self.r)
-        return f, K
-
-    def forces(self, q, a, need_k, t=0.0):
-        """Internal forces (no inertia, damping): (f_r, K_r or None, min det F)."""
-        fb, kb, jmin = self.bricks_part(q, a, need_k)
-        fc, kc = self.cables_part(q, a, need_k)
-        fk, kk = self.contact_part(q, need_k, t)
-        f = fb + fc + fk
-        return f, (kb + kc + kk if need_k else None), jmin
 
     def passive_stiffness(self, q, dle=None):
         """V^T K_n V by the cubature: the passive tissue's small-strain stiffness on the

@@ -10,12 +10,11 @@ ModelNotTrained names the training command. Its knobs are one ReducedOptions.
 
 Time stepping (solver.rom.stepper): variable-step BDF2 in reduced coordinates at
 error-controlled substeps of at most h = 5 ms (tol, mm), or backward Euler at fixed
-substeps of at most 1 ms (integrator "backward_euler", tol None), activations ramping
-within a caller's step as in the full model (hold "ramp"); method "fast" (default:
-modified Newton with a frozen reduced tangent on solver.rom.online) or "reference" (the
-implementation the fast one is tested against; backward Euler). Converged when |dq| <=
-utol (mm; default 1e-2). Damping C = alpha M + beta K_n with K_n hyper-reduced by the
-cubature (damping="current", default), or the constant V^T K_0 V (damping="rest").
+substeps of at most 1 ms (integrator "backward_euler"), activations ramping within a
+caller's step as in the full model (hold "ramp"); modified Newton with a frozen reduced
+tangent on solver.rom.online, converged when |dq| <= utol (mm; default 1e-2). Damping
+C = alpha M + beta K_n with K_n hyper-reduced by the cubature (damping="current",
+default), or the constant V^T K_0 V (damping="rest").
 
 The jaw: u = V q + L(p), the lifting L of the jaw's pose p (solver.rom.lifting), ramping
 within a step as in the full model. A target pose outside the poses the model's
@@ -51,7 +50,7 @@ from solver.core.units import kg_per_m3
 from solver.face.jaw import JAW_INPUTS, JAW_UNITS
 from solver.face.terms.contact import TOLERANCE
 from solver.rom.reduced import ReducedOperator
-from solver.rom.stepper import H_MAX, H_MAX_BE, INTEGRATORS, METHODS, Stepper
+from solver.rom.stepper import H_MAX, H_MAX_BE, INTEGRATORS, Stepper
 from solver.rom.store import find_model, load_model
 from solver.rom.outputs import LipOutputs
 from solver.rom.trust import TrustCheck
@@ -70,25 +69,19 @@ class ReducedOptions:
     substeps between trust checks; integrator 'bdf2' | 'backward_euler'; tol: the
     substeps' absolute error tolerance (mm; None: fixed substeps of h; backward Euler
     takes none); h: largest substep (s; None: H_MAX (BDF2) or H_MAX_BE (backward Euler),
-    or the scene's max_substep where that is smaller); utol (mm), max_iter: the reduced
-    Newton's; method
-    'fast' (default) or 'reference' with its own knobs (refresh; rate, contact_delta,
-    max_frozen, kb_every: solver.rom.stepper); damping 'rest' (C_r constant) or 'current'
-    (K_n by the cubature on the shape at the start of each substep; the reference method
-    rebuilds it every damping_refresh substeps); warmup: load every kernel at
-    construction (ReducedSimulation.warmup)."""
+    or the scene's max_substep where that is smaller); utol (mm), max_iter, rate,
+    contact_delta, max_frozen, kb_every: the reduced Newton's (solver.rom.stepper);
+    damping 'rest' (C_r constant) or 'current' (K_n by the cubature on the substep's
+    shape); warmup: load every kernel at construction (ReducedSimulation.warmup)."""
 
     trust: str = "fallback"
     check_every: int = 20
     integrator: str = "bdf2"
     tol: float | None = 0.1
     h: float | None = None
-    refresh: int = 4
     utol: float = 1e-2
     max_iter: int = 20
     damping: str = "current"
-    damping_refresh: int = 5
-    method: str = "fast"
     rate: float = 0.8
     contact_delta: float = 0.5
     max_frozen: int = 6
@@ -100,8 +93,6 @@ class ReducedOptions:
             raise ParameterError(f"damping = {self.damping!r} is not 'rest' or 'current'")
         if self.trust not in TRUST_MODES:
             raise ParameterError(f"trust = {self.trust!r} is not one of {TRUST_MODES}")
-        if self.method not in METHODS:
-            raise ParameterError(f"method = {self.method!r} is not one of {METHODS}")
         if self.integrator not in INTEGRATORS:
             raise ParameterError(f"integrator = {self.integrator!r} is not one of "
                                  f"{INTEGRATORS}")
@@ -164,9 +155,8 @@ class ReducedSimulation(SceneDriver):
         M_r = arrays["M_r"]
         self.op = ReducedOperator(full, V, arrays["bricks"], arrays["weights"],
                                   m_scale * M_r, alpha * M_r + beta * arrays["K0_r"])
-        self.stepper = Stepper(self.op, M_r, alpha, beta, opts.damping, opts.damping_refresh,
-                               h, utol, max_iter, opts.method, opts.refresh, opts.rate,
-                               opts.contact_delta, opts.max_frozen, opts.kb_every,
+        self.stepper = Stepper(self.op, M_r, alpha, beta, opts.damping, h, utol, max_iter,
+                               opts.rate, opts.contact_delta, opts.max_frozen, opts.kb_every,
                                opts.integrator, opts.tol if bdf2 else None)
         r = V.shape[1]
         self.q, self.v_r = np.zeros(r), np.zeros(r)

@@ -16,20 +16,16 @@ size, twice at most. Damping C_r = alpha M_r + beta V^T K_n V, K_n the passive
 small-strain stiffness by the cubature on the predicted end shape (BDF2; backward Euler:
 the start shape) with damping "current", or the constant rest one with "rest".
 
-Two Newton methods, for the same equations:
-
-* "fast" (default): modified Newton on solver.rom.online.OnlineOperator. The damping
-  force is evaluated matrix-free at every iteration (exact); the tangent
-  J = c^2 M_r + c alpha M_r + c beta K_n + K_bricks + K_switch is kept, LU-factorized,
-  across iterations and substeps, and refreshed when an iteration converges slowly
-  (rate, max_frozen: first K_switch, then K_n and K_bricks, rebuilt on the current shape
-  when older than kb_every substeps). J changes the path, not the root. Newton starts
-  from BDF2's predictor (backward Euler: q_n + h v_n + h^2 a_n). Converged when |dq| <=
-  utol and theta / (1 - theta) |dq| <= utol, theta the observed contraction.
-* "reference" (backward Euler only): solver.rom.reduced.ReducedOperator, the bricks'
-  tangent refreshed every `refresh` substeps, cables and contact tangents at every
-  iteration, C_r rebuilt every `damping_refresh` substeps (what the fast method is
-  tested against, tests/test_rom_online.py), converged when |dq| <= utol.
+Newton: modified Newton on solver.rom.online.OnlineOperator. The damping force is
+evaluated matrix-free at every iteration (exact); the tangent J = c^2 M_r + c alpha M_r
++ c beta K_n + K_bricks + K_switch is kept, LU-factorized, across iterations and
+substeps, and refreshed when an iteration converges slowly (rate, max_frozen: first
+K_switch, then K_n and K_bricks, rebuilt on the current shape when older than kb_every
+substeps). J changes the path, not the root. Newton starts from BDF2's predictor
+(backward Euler: q_n + h v_n + h^2 a_n). Converged when |dq| <= utol and theta / (1 -
+theta) |dq| <= utol, theta the observed contraction. tests/rom_reference.py holds the
+reference it is tested against: the general kernels, the contact terms' own assemble()
+and full Newton, in backward Euler steps.
 
 utol in mm: V is orthonormal, so |dq| is the Euclidean norm of the displacement
 correction. The caches (tangents, predictor, contact lists) change the path, not the
@@ -48,7 +44,6 @@ from solver.core.transient import STRETCH, coefficients, growth
 from solver.rom.online import OnlineOperator
 from solver.rom.online_kernels import lu_solve_small
 
-METHODS = ("fast", "reference")
 INTEGRATORS = ("bdf2", "backward_euler")
 H_MAX = 5e-3        # s: the largest BDF2 substep, unless the scene asks for a smaller one
 H_MAX_BE = 1e-3     # s: backward Euler's fixed substep
@@ -91,14 +86,11 @@ class Stepper:
     None: fixed substeps of h_max). The integrator's history (BDF2: the state one substep
     back), its proposal ``h`` and last error ``err_prev`` are state (get_state), not caches."""
 
-    def __init__(self, op, M_r, alpha, beta, damping="current", damping_refresh=5,
-                 h_max=H_MAX, utol=1e-4, max_iter=20, method="fast", refresh=4, rate=0.8,
-                 contact_delta=0.2, max_frozen=6, kb_every=50, integrator="bdf2", tol=None):
+    def __init__(self, op, M_r, alpha, beta, damping="current", h_max=H_MAX, utol=1e-4,
+                 max_iter=20, rate=0.8, contact_delta=0.2, max_frozen=6, kb_every=50,
+                 integrator="bdf2", tol=None):
         if integrator not in INTEGRATORS:
             raise ParameterError(f"integrator = {integrator!r} is not one of {INTEGRATORS}")
-        if method == "reference" and integrator != "backward_euler":
-            raise ParameterError("the reduced method 'reference' steps with backward Euler "
-                                 "only: pass integrator='backward_euler'")
         if tol is not None and not tol > 0:
             raise ParameterError(f"tol = {tol!r} must be a number > 0 (mm) or None")
         self.integrator, self.tol = integrator, tol
@@ -107,13 +99,12 @@ class Stepper:
         self.h, self.err_prev = h_max, 1.0      # the controller's proposal, last error
         self.op, self.M_r, self.alpha, self.beta = op, op.M_r, alpha, beta
         self.M_damp = M_r
-        self.damping, self.damping_refresh = damping, int(damping_refresh)
+        self.damping = damping
         self.h_max, self.utol, self.max_iter = h_max, utol, max_iter
-        self.method, self.refresh, self.rate = method, refresh, rate
-        self.max_frozen, self.kb_every = max_frozen, kb_every
+        self.rate, self.max_frozen, self.kb_every = rate, max_frozen, kb_every
         self.grow = 10.0                        # residual growth that triggers a backtrack
-        self.online = OnlineOperator(op, contact_delta) if method == "fast" else None
-        self._current = method == "fast" and damping == "current" and bool(beta)
+        self.online = OnlineOperator(op, contact_delta)
+        self._current = damping == "current" and bool(beta)
         self.C_r = op.C_r
         self.last = None                        # (q_n, v_n, h, StageR) of the last substep
         self.stats = {"brick_tangents": 0, "switch_tangents": 0, "factorizations": 0,
@@ -121,9 +112,6 @@ class Stepper:
         self.reset_caches()
 
     def reset_caches(self):
-        self._damping_age = 10 ** 9             # rebuild C_r at the next substep
-        self._kb = None                         # reference method's bricks tangent
-        self._since_refresh, self._last_iters = 10 ** 9, 0
         self._Kb = self._Ks = self._Kn = self._lu = self._a_kb = None
         self._Kparts = [None] * (self.online.parts if self.online is not None else 0)
         self._sets, self._A_key, self._bd = None, None, 0.0
@@ -136,27 +124,15 @@ class Stepper:
 
     @property
     def penetration(self):
-        """The deepest contact penetration (mm) of the last force evaluation (0 on the
-        reference method, which does not measure it)."""
-        return self.online.contact.penetration if self.online is not None else 0.0
+        """The deepest contact penetration (mm) of the last force evaluation."""
+        return self.online.contact.penetration
 
     @property
     def contact_force(self):
-        if self.online is not None:
-            return self.online.contact_force
-        return float(sum(getattr(t, "total_force", 0.0) for t in self.op.contact))
+        return self.online.contact_force
 
-    # -- damping --------------------------------------------------------------------------
-    def _damping(self, q):
-        """The reference method's damping matrix C_r, rebuilt every damping_refresh."""
-        if self.method == "fast" or self.damping != "current" or not self.beta:
-            return
-        if self._damping_age >= self.damping_refresh:
-            self.C_r = self.alpha * self.M_damp + self.beta * self.op.passive_stiffness(q)
-            self.op.C_r = self.C_r
-            self._damping_age = 0
-            self.stats["damping_builds"] += 1
-        self._damping_age += 1
+    def _before_substep(self, q_n):
+        """A hook at each substep's start, from its start state q_n (nothing here)."""
 
     # -- substeps -------------------------------------------------------------------------
     def advance(self, q, v, act, t0, t_end, stats, jaw=None):
@@ -165,7 +141,7 @@ class Stepper:
         v). stats: a StepStats to fill. On failure the history and the controller stay
         as they were."""
         span = t_end - t0
-        newton = self._newton_fast if self.method == "fast" else self._newton_reference
+        newton = self._newton
         adaptive = self.tol is not None
         prev = self.history if self.integrator == "bdf2" else None
         h_prop = min(self.h, self.h_max) if adaptive else self.h_max
@@ -194,12 +170,12 @@ class Stepper:
             if jaw is not None and self.op.set_pose(jaw.at(lam_prev), jaw.at(lam), lam) \
                     and self.online is not None:
                 self.online.set_pose()
-            self._damping(q)
+            self._before_substep(q)
             stage = StageR(q, v, h, prev, self.op.L_n)
             q_new, its, why = newton(q, v, h, act.at(lam), t0 + lam * span, stage)
             stats.newton_iterations += its
             if q_new is None:
-                self._kb = self._Kb = None
+                self._Kb = None
                 if pieces is not None:
                     d = depth.get(round(lam_prev, 12), 0)
                     if d >= MAX_SPLITS:
@@ -295,7 +271,7 @@ class Stepper:
         self._lu = None
         return True
 
-    def _newton_fast(self, q_n, v_n, h, a, t, stage):
+    def _newton(self, q_n, v_n, h, a, t, stage):
         on, M = self.online, self.M_r
         c = stage.c
         on.set_activation(a)
@@ -379,49 +355,4 @@ class Stepper:
                 refresh = min(escalated + 1, 2)   # slow: fresher tangents next iteration
                 self.stats["slow"] += 1
             r_prev, dn_prev = rn, dn
-        return None, self.max_iter, f"no convergence in {self.max_iter} iterations"
-
-    # -- reference Newton (method "reference") -------------------------------------------
-    def _newton_reference(self, q_n, v_n, h, a, t, stage=None):
-        op = self.op
-        A = self.M_r / h ** 2 + self.C_r / h
-        q = q_n + h * v_n
-        b = self.M_r @ (q_n + h * v_n) / h ** 2 + self.C_r @ q_n / h
-        if op.moving and self.beta:       # the jaw's motion damped through the tissue
-            b = b - (self.beta / h) * op.lifting_damping(q_n)
-        refresh = (self._kb is None or self._since_refresh >= self.refresh
-                   or self._last_iters > 3)
-        r_prev, dq_prev = np.inf, None
-        for it in range(1, self.max_iter + 1):
-            need_b = refresh and it == 1
-            fb, kb, jmin = op.bricks_part(q, a, need_b)
-            if not jmin > 0.0:
-                return None, it, "inverted brick"
-            if need_b:
-                self._kb, self._since_refresh = kb, 0
-            fc, kc = op.cables_part(q, a, True)
-            fk, kk = op.contact_part(q, True, t)
-            R = A @ q - b + fb + fc + fk
-            rn = float(np.linalg.norm(R))
-            if rn > r_prev and dq_prev is not None:
-                dq_prev = 0.5 * dq_prev
-                q = q - dq_prev
-                if float(np.linalg.norm(dq_prev)) <= self.utol:
-                    self._since_refresh += 1
-                    self._last_iters = it
-                    return q, it, ""
-                continue
-            J = A + self._kb + kc + kk
-            try:
-                dq = -sla.solve(J, R, assume_a="sym", check_finite=False)
-            except (sla.LinAlgError, ValueError):
-                return None, it, "singular reduced tangent"
-            if not np.all(np.isfinite(dq)):
-                return None, it, "NaN"
-            q = q + dq
-            r_prev, dq_prev = rn, dq
-            if float(np.linalg.norm(dq)) <= self.utol:
-                self._since_refresh += 1
-                self._last_iters = it
-                return q, it, ""
         return None, self.max_iter, f"no convergence in {self.max_iter} iterations"
