@@ -166,3 +166,19 @@ def assert_same_lips(rows0, rows1, tol=1e-4):
     for a, b in zip(rows0, rows1):
         assert abs(a["lip_protrusion"] - b["lip_protrusion"]) < tol
         assert abs(a["lip_aperture"] - b["lip_aperture"]) < tol
+
+
+def smooth_rows(sim, h, peaks, read, span=0.04):
+    """Drive sim (a Simulation or ReducedSimulation) along a smooth gesture, each muscle of
+    peaks {muscle: peak activation} along peak (1 - cos(pi t / span)) / 2 at caller steps
+    of h (each sees its activations at its end); (k, m) the outputs read(sim) (a list of
+    m numbers) every 5 ms."""
+    n, every = int(round(span / h)), int(round(0.005 / h))
+    rows = []
+    for k in range(1, n + 1):
+        s = 0.5 * (1.0 - np.cos(np.pi * k * h / span))
+        sim.set_activations({m: peak * s for m, peak in peaks.items()})
+        assert sim.step(k * h).converged
+        if k % every == 0:
+            rows.append(read(sim))
+    return np.array(rows)

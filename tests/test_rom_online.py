@@ -349,17 +349,11 @@ def _rom_smooth(trained, h, integrator, span=0.04):
     """The ROM's lip outputs (aperture, protrusion; mm) every 5 ms of a smooth gesture (the
     tiny model's three muscles along 1 - cos over span) at fixed substeps h with caller
     steps of h, Newton converged tightly."""
+    from conftest import smooth_rows
     rom = _rom(trained, integrator=integrator, tol=None, h=h, utol=1e-9, trust="off")
-    n, every = int(round(span / h)), int(round(0.005 / h))
-    rows = []
-    for k in range(1, n + 1):
-        s = 0.5 * (1.0 - np.cos(np.pi * k * h / span))
-        rom.set_activations({"OOP": 0.5 * s, "RIS": 0.4 * s, "DLI": 0.4 * s})
-        assert rom.step(k * h).converged
-        if k % every == 0:
-            out = rom.outputs()
-            rows.append([out["lip_aperture"], out["lip_protrusion"]])
-    return np.array(rows)
+    return smooth_rows(rom, h, {"OOP": 0.5, "RIS": 0.4, "DLI": 0.4},
+                       lambda s: [s.outputs()[k] for k in ("lip_aperture", "lip_protrusion")],
+                       span)
 
 
 def test_reduced_bdf2_converges_at_second_order_and_backward_euler_at_first(trained_smooth):

@@ -241,20 +241,15 @@ def _smooth_gesture(h, method, anatomy=None, span=0.04):
     from solver.app.scene import parse_scene
     from solver.app.simulation import Simulation
     from solver.validation.stability import lip_outputs, scene_dict
+    from conftest import smooth_rows
     sc = scene_dict("smooth", ("LLSAN", "OOP", "RIS"), lips=False, teeth=False)
     sc["solver"].update(newton_rtol=1e-10, newton_utol=1e-9, integrator=method)
     sim = Simulation(parse_scene(sc), loaded_anatomy=anatomy)
     sim.integrator.fixed_step = h
-    n, every = int(round(span / h)), int(round(0.005 / h))
-    rows = []
-    for k in range(1, n + 1):
-        s = 0.5 * (1.0 - np.cos(np.pi * k * h / span))
-        sim.set_activations({"LLSAN": 0.8 * s, "OOP": 0.4 * s, "RIS": 0.3 * s})
-        assert sim.step(k * h).converged
-        if k % every == 0:
-            out = lip_outputs(sim)
-            rows.append([out["lip_aperture"], out["lip_protrusion"], out["lip_width"]])
-    return np.array(rows), sim.anatomy
+    keys = ("lip_aperture", "lip_protrusion", "lip_width")
+    rows = smooth_rows(sim, h, {"LLSAN": 0.8, "OOP": 0.4, "RIS": 0.3},
+                       lambda s: [lip_outputs(s)[k] for k in keys], span)
+    return rows, sim.anatomy
 
 
 def test_bdf2_lip_outputs_converge_at_second_order_and_backward_euler_at_first():
